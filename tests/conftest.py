@@ -1,0 +1,30 @@
+"""Shared fixtures: every test reads the real KITTI frames from the configurable data root."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_DATA_ROOT = PROJECT_ROOT.parent / "shared" / "data"
+
+
+def data_root() -> Path:
+    """The data root: ``$TTC_DATA_DIR`` when set, else ``../shared/data`` beside the project."""
+    return Path(os.environ.get("TTC_DATA_DIR", DEFAULT_DATA_ROOT)).resolve()
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    root = data_root()
+    if not (root / "kitti").is_dir():
+        pytest.fail(f"KITTI data not found under {root}; set TTC_DATA_DIR")
+    return root
+
+
+@pytest.fixture(scope="session")
+def kitti_dir(data_dir: Path) -> Path:
+    """Folder of the 2011_09_26 sequence (image_02/, velodyne_points/, calib_*.txt)."""
+    return data_dir / "kitti" / "2011_09_26"
