@@ -1,0 +1,114 @@
+"""Stage cache: hits, corrupt entries, errors in place, cooperative computation across processes."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ttc.cache import StageCache, Task, cache_key
+
+
+def _task(key: str, calls: list[int], value: float = 1.0) -> Task:
+    def compute() -> dict:
+        calls.append(1)
+        return {"a": np.arange(5) * value}
+
+    return Task("stage", key, compute)
+
+
+def test_second_lookup_is_a_hit(tmp_path: Path) -> None:
+    cache = StageCache(tmp_path)
+    calls: list[int] = []
+    key = cache_key("stage", {"p": 1})
+    first = cache.get(_task(key, calls))
+    second = cache.get(_task(key, calls))
+    assert (first.cached, second.cached) == (False, True)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(second.arrays["a"], np.arange(5))
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_keys_depend_on_every_part() -> None:
+    assert cache_key("s", {"a": 1, "b": 2}) == cache_key("s", {"b": 2, "a": 1})
+    assert cache_key("s", {"a": 1}) != cache_key("s", {"a": 2})
+    assert cache_key("s", 1) != cache_key("t", 1)
+
+
+def test_corrupt_entry_is_recomputed(tmp_path: Path) -> None:
+    cache = StageCache(tmp_path)
+    calls: list[int] = []
+    key = cache_key("stage", "corrupt")
+    cache.get(_task(key, calls))
+    path = cache.path("stage", key)
+    path.write_bytes(path.read_bytes()[:40])  # truncated zip
+    again = StageCache(tmp_path).get(_task(key, calls))
+    assert not again.cached and len(calls) == 2
+    np.testing.assert_array_equal(again.arrays["a"], np.arange(5))
+    assert StageCache(tmp_path).get(_task(key, calls)).cached
+
+
+def test_entry_with_foreign_key_is_rejected(tmp_path: Path) -> None:
+    cache = StageCache(tmp_path)
+    calls: list[int] = []
+    k1, k2 = cache_key("stage", 1), cache_key("stage", 2)
+    cache.get(_task(k1, calls))
+    cache.path("stage", k2).parent.mkdir(parents=True, exist_ok=True)
+    cache.path("stage", k1).rename(cache.path("stage", k2))
+    assert cache.load("stage", k2) is None
+    assert cache.corrupt_entries == 1
+
+
+def test_disabled_cache_always_computes(tmp_path: Path) -> None:
+    cache = StageCache(tmp_path, enabled=False)
+    calls: list[int] = []
+    key = cache_key("stage", "x")
+    cache.get(_task(key, calls))
+    cache.get(_task(key, calls))
+    assert len(calls) == 2
+    assert not any(tmp_path.iterdir())
+
+
+def test_resolve_returns_listed_errors_in_place(tmp_path: Path) -> None:
+    def broken() -> dict:
+        raise FileNotFoundError("frame 3 missing")
+
+    calls: list[int] = []
+    tasks = [_task(cache_key("s", 1), calls), Task("s", cache_key("s", 2), broken)]
+    out = StageCache(tmp_path).resolve(tasks, errors=(FileNotFoundError,))
+    assert not isinstance(out[0], Exception)
+    assert isinstance(out[1], FileNotFoundError)
+
+
+def _worker(directory: str, n: int, queue) -> None:
+    cache = StageCache(directory)
+    computed = []
+
+    def make(i: int) -> Task:
+        def compute() -> dict:
+            time.sleep(0.05)
+            computed.append(i)
+            return {"v": np.array([i])}
+
+        return Task("slow", cache_key("slow", i), compute)
+
+    results = cache.resolve([make(i) for i in range(n)])
+    assert [int(r.arrays["v"][0]) for r in results] == list(range(n))
+    queue.put(computed)
+
+
+def test_two_processes_split_the_work(tmp_path: Path) -> None:
+    """Two workers needing the same 16 entries compute each of them once between them."""
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    procs = [ctx.Process(target=_worker, args=(str(tmp_path), 16, queue)) for _ in range(2)]
+    for proc in procs:
+        proc.start()
+    done = [queue.get(timeout=60) for _ in procs]
+    for proc in procs:
+        proc.join(timeout=60)
+        assert proc.exitcode == 0
+    computed = sorted(done[0] + done[1])
+    assert computed == list(range(16))  # no entry computed twice

@@ -1,0 +1,126 @@
+"""Loading KITTI frames and calibration: real files, and malformed copies in a temp folder."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ttc.frames import (
+    FrameDataError,
+    frame_files,
+    frame_indices,
+    frame_interval,
+    load_calibration,
+    load_frame,
+    read_image,
+    read_lidar_scan,
+)
+
+MIN_SCAN_POINTS = 100_000
+
+
+def test_real_frame_loads(kitti_dir: Path) -> None:
+    frame = load_frame(kitti_dir, 0)
+    assert frame.image.shape == (375, 1242, 3)
+    assert frame.image.dtype == np.uint8
+    assert frame.scan.points.shape[1] == 4
+    assert frame.scan.points.dtype == np.float32
+    assert 110_000 < len(frame.scan) < 116_000
+    assert frame.scan.n_dropped == 0
+    assert not frame.scan_is_short(MIN_SCAN_POINTS)
+
+
+def test_frame_77_truncated_scan_loads_and_is_flagged(kitti_dir: Path) -> None:
+    frame = load_frame(kitti_dir, 77)
+    assert len(frame.scan) == 1_115_504 // 16 == 69_719
+    assert frame.scan_is_short(MIN_SCAN_POINTS)
+
+
+def test_calibration_parsed(kitti_dir: Path) -> None:
+    calib = load_calibration(kitti_dir)
+    assert calib.p_rect.shape == (3, 4)
+    assert calib.p_rect[0, 0] == pytest.approx(721.5377)
+    assert calib.p_rect[0, 3] == pytest.approx(44.85728)
+    assert calib.image_size == (1242, 375)
+    assert calib.velo_to_image.shape == (3, 4)
+    assert load_calibration(kitti_dir, "P_rect_00").p_rect[0, 3] == 0.0
+    with pytest.raises(ValueError, match="projection"):
+        load_calibration(kitti_dir, "P_rect_03")
+
+
+def test_frame_range_and_interval() -> None:
+    assert frame_indices(0, 18) == list(range(19))
+    assert frame_indices(0, 18, 3) == [0, 3, 6, 9, 12, 15, 18]
+    assert frame_interval(1) == pytest.approx(0.1)
+    assert frame_interval(3) == pytest.approx(0.3)
+    with pytest.raises(ValueError):
+        frame_indices(5, 2)
+
+
+@pytest.fixture
+def broken_dir(kitti_dir: Path, tmp_path: Path) -> Path:
+    """A copy of frames 0–1 and the calibration, to be damaged by each test."""
+    for index in (0, 1):
+        files = frame_files(kitti_dir, index)
+        for src in (files.image, files.scan):
+            dst = tmp_path / src.relative_to(kitti_dir)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(src, dst)
+    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
+        shutil.copy(kitti_dir / name, tmp_path / name)
+    return tmp_path
+
+
+def test_missing_image_names_file(broken_dir: Path) -> None:
+    files = frame_files(broken_dir, 0)
+    files.image.unlink()
+    with pytest.raises(FrameDataError, match=r"0000000000\.png: image not found"):
+        load_frame(broken_dir, 0)
+
+
+def test_missing_scan_names_file(broken_dir: Path) -> None:
+    files = frame_files(broken_dir, 1)
+    files.scan.unlink()
+    with pytest.raises(FrameDataError, match=r"0000000001\.bin: lidar scan not found"):
+        load_frame(broken_dir, 1)
+
+
+def test_unreadable_png_names_file(broken_dir: Path) -> None:
+    path = frame_files(broken_dir, 0).image
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 10)
+    with pytest.raises(FrameDataError, match=r"0000000000\.png: unreadable image"):
+        read_image(path)
+
+
+def test_scan_size_not_multiple_of_16(broken_dir: Path) -> None:
+    path = frame_files(broken_dir, 0).scan
+    data = path.read_bytes()
+    path.write_bytes(data[:-5])
+    with pytest.raises(FrameDataError, match=r"0000000000\.bin: size \d+ bytes is not a multiple of 16"):
+        read_lidar_scan(path)
+
+
+def test_non_finite_points_dropped_and_counted(broken_dir: Path) -> None:
+    path = frame_files(broken_dir, 0).scan
+    points = np.fromfile(path, dtype="<f4").reshape(-1, 4)
+    points[[3, 10, 11], 0] = np.nan
+    points[20, 2] = np.inf
+    points.tofile(path)
+    scan = read_lidar_scan(path)
+    assert scan.n_dropped == 4
+    assert len(scan) == len(points) - 4
+    assert np.isfinite(scan.points).all()
+
+
+def test_missing_calibration_entry(broken_dir: Path) -> None:
+    path = broken_dir / "calib_cam_to_cam.txt"
+    lines = [line for line in path.read_text().splitlines() if not line.startswith("P_rect_02")]
+    path.write_text("\n".join(lines))
+    with pytest.raises(FrameDataError, match=r"calib_cam_to_cam\.txt: missing entry 'P_rect_02'"):
+        load_calibration(broken_dir)
+    (broken_dir / "calib_velo_to_cam.txt").unlink()
+    with pytest.raises(FrameDataError, match="calib_velo_to_cam.txt: calibration file not found"):
+        load_calibration(broken_dir, "P_rect_00")

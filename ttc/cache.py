@@ -1,0 +1,181 @@
+"""On-disk cache of the expensive pipeline stages, shared by jobs, workers and sweeps.
+
+An entry is a dict of numpy arrays stored as one uncompressed ``.npz`` file, named by the hash
+of its key (the stage name plus the identity of the input files and the stage's resolved
+parameters). Safety under concurrent workers:
+
+* writes go to a temporary file in the same folder and are renamed into place, so a reader
+  sees a whole entry or none;
+* a corrupt or foreign entry (unreadable, or storing another key) is deleted and recomputed;
+* computation is *cooperative*: before computing an entry a worker takes a non-blocking
+  ``flock`` on ``<entry>.lock``. If another worker holds it, the caller can do other work first
+  (:meth:`StageCache.resolve` defers such entries) and only then wait, so two workers that
+  start on the same detector split its frames instead of computing each of them twice.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import tempfile
+import time
+import zipfile
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process locking
+    fcntl = None
+
+Arrays = dict[str, np.ndarray]
+_KEY_FIELD = "__cache_key__"
+
+
+def cache_key(stage: str, *parts: Any) -> str:
+    """Stable hex digest of a stage name and JSON-serialisable key parts."""
+    text = json.dumps([stage, *parts], sort_keys=True, default=str, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+@dataclass
+class Lookup:
+    """What one cache request returned: the arrays, whether they came from disk, time (ms)."""
+
+    arrays: Arrays
+    cached: bool
+    ms: float
+
+
+@dataclass
+class Task:
+    """A cache entry to produce: ``compute()`` returns its arrays when it is not on disk."""
+
+    stage: str
+    key: str
+    compute: Callable[[], Arrays]
+    result: Lookup | None = field(default=None, repr=False)
+
+
+class StageCache:
+    """Cache rooted at ``directory``; ``directory=None`` or ``enabled=False`` computes always."""
+
+    def __init__(self, directory: Path | str | None, enabled: bool = True) -> None:
+        self.directory = Path(directory) if directory is not None else None
+        self.enabled = enabled and directory is not None
+        self.corrupt_entries = 0
+
+    # -- paths -------------------------------------------------------------------------------
+    def path(self, stage: str, key: str) -> Path:
+        assert self.directory is not None
+        return self.directory / stage / key[:2] / f"{key}.npz"
+
+    # -- read / write ------------------------------------------------------------------------
+    def load(self, stage: str, key: str) -> Arrays | None:
+        """The stored arrays, or None when absent; a corrupt entry is deleted and None returned."""
+        if not self.enabled:
+            return None
+        path = self.path(stage, key)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {name: data[name] for name in data.files}
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):
+            self._discard(path)
+            return None
+        if str(arrays.pop(_KEY_FIELD, "")) != key:
+            self._discard(path)
+            return None
+        return arrays
+
+    def store(self, stage: str, key: str, arrays: Arrays) -> None:
+        """Write an entry atomically (temporary file + rename)."""
+        if not self.enabled:
+            return
+        path = self.path(stage, key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{key}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as handle:
+                np.savez(handle, **arrays, **{_KEY_FIELD: np.array(key)})
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+            raise
+
+    def _discard(self, path: Path) -> None:
+        self.corrupt_entries += 1
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+    # -- locking -----------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def _lock(self, stage: str, key: str, blocking: bool) -> Iterator[bool]:
+        if not self.enabled or fcntl is None:
+            yield True
+            return
+        lock_path = self.path(stage, key).with_suffix(".lock")
+        lock_path.parent.mkdir(parents=True, exist_ok=True)
+        with open(lock_path, "a+b") as handle:
+            flags = fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB)
+            try:
+                fcntl.flock(handle, flags)
+            except BlockingIOError:
+                yield False
+                return
+            try:
+                yield True
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+
+    # -- high level --------------------------------------------------------------------------
+    def get(self, task: Task, blocking: bool = True) -> Lookup | None:
+        """Load or compute ``task``'s entry; None when not blocking and another worker has it."""
+        if task.result is not None:
+            return task.result
+        start = time.perf_counter()
+        arrays = self.load(task.stage, task.key)
+        if arrays is None:
+            with self._lock(task.stage, task.key, blocking) as locked:
+                if not locked:
+                    return None
+                arrays = self.load(task.stage, task.key)  # another worker may have finished
+                if arrays is None:
+                    start = time.perf_counter()
+                    arrays = task.compute()
+                    self.store(task.stage, task.key, arrays)
+                    task.result = Lookup(arrays, False, 1e3 * (time.perf_counter() - start))
+                    return task.result
+        task.result = Lookup(arrays, True, 1e3 * (time.perf_counter() - start))
+        return task.result
+
+    def resolve(
+        self, tasks: Sequence[Task], errors: tuple[type[Exception], ...] = ()
+    ) -> list[Lookup | Exception]:
+        """Produce every task, deferring those another worker is computing right now.
+
+        An exception of a type in ``errors`` raised by a task's computation is returned in
+        that task's place (e.g. one unreadable frame), so the other tasks still complete.
+        """
+        outcome: dict[int, Lookup | Exception] = {}
+        deferred = []
+        for i, task in enumerate(tasks):
+            try:
+                if self.get(task, blocking=False) is None:
+                    deferred.append(i)
+            except errors as exc:
+                outcome[i] = exc
+        for i in deferred:
+            try:
+                self.get(tasks[i], blocking=True)
+            except errors as exc:
+                outcome[i] = exc
+        return [outcome.get(i, task.result) for i, task in enumerate(tasks)]  # type: ignore[misc]
