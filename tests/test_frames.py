@@ -99,7 +99,9 @@ def test_scan_size_not_multiple_of_16(broken_dir: Path) -> None:
     path = frame_files(broken_dir, 0).scan
     data = path.read_bytes()
     path.write_bytes(data[:-5])
-    with pytest.raises(FrameDataError, match=r"0000000000\.bin: size \d+ bytes is not a multiple of 16"):
+    with pytest.raises(
+        FrameDataError, match=r"0000000000\.bin: size \d+ bytes is not a multiple of 16"
+    ):
         read_lidar_scan(path)
 
 

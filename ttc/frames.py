@@ -134,7 +134,8 @@ def read_lidar_scan(path: Path | str) -> LidarScan:
     size = path.stat().st_size
     if size % LIDAR_RECORD_BYTES:
         raise FrameDataError(
-            path, f"size {size} bytes is not a multiple of {LIDAR_RECORD_BYTES} (x, y, z, r float32)"
+            path,
+            f"size {size} bytes is not a multiple of {LIDAR_RECORD_BYTES} (x, y, z, r float32)",
         )
     points = np.fromfile(path, dtype="<f4").reshape(-1, 4)
     finite = np.isfinite(points).all(axis=1)
@@ -203,7 +204,9 @@ class Frame:
 def load_frame(sequence_dir: Path | str, index: int) -> Frame:
     """Load frame ``index`` (image and scan) of a KITTI-raw recording."""
     files = frame_files(sequence_dir, index)
-    return Frame(index=index, image=read_image(files.image), scan=read_lidar_scan(files.scan), files=files)
+    return Frame(
+        index=index, image=read_image(files.image), scan=read_lidar_scan(files.scan), files=files
+    )
 
 
 def frame_indices(first: int, last: int, step: int = 1) -> list[int]:

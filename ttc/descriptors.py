@@ -1,0 +1,283 @@
+"""Keypoint descriptors: six OpenCV extractors behind one call, and which pairs are valid.
+
+Each descriptor has a frozen parameter dataclass (plain fields, usable as a Hydra
+structured-config schema) whose ``name`` selects it in :data:`DESCRIPTORS` and in
+:func:`describe_keypoints`. SIFT descriptors are float32 (L2 distance); the others are binary
+uint8 strings (Hamming distance), AKAZE's MLDB included.
+
+Some detector × descriptor pairs cannot work; :data:`INVALID_PAIRS` lists them with the reason,
+and :func:`check_pair` refuses them before any work, so a sweep can record a skip instead of
+crashing (or trying to allocate 70 GB). What OpenCV 4.14 does with them on KITTI frame 0:
+
+* akaze descriptor on any non-AKAZE keypoints (6 pairs): ``cv2.error`` (-215) in
+  AKAZEFeatures.cpp, ``0 <= kpts[i].class_id && kpts[i].class_id < evolution_.size()``: the
+  descriptor indexes its scale space with the keypoint's class_id, which only AKAZE sets (−1
+  elsewhere).
+* orb descriptor on sift keypoints: ``cv2.error`` (-4) "Failed to allocate 70168247552 bytes":
+  ORB reads SIFT's packed ``octave`` (up to ~1.7e7) as a pyramid level and sizes its pyramid
+  by it.
+
+Every other pair (35 of 42) gives descriptors on KITTI frames 0 and 1 (checked by
+``tests/test_features.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ttc.keypoints import (
+    AKAZE_DIFFUSIVITIES,
+    DETECTORS,
+    array_to_keypoints,
+    check_gray,
+    empty_keypoints,
+    keypoints_to_array,
+    opencv_constant,
+    opencv_factory,
+    require_choice,
+    require_name,
+    require_positive,
+)
+
+
+@dataclass(frozen=True)
+class BriskDescriptorParams:
+    """BRISK descriptor (64 bytes); ``pattern_scale`` scales the sampling pattern."""
+
+    name: str = "brisk"
+    pattern_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        require_name(self, "brisk")
+        require_positive(pattern_scale=self.pattern_scale)
+
+
+@dataclass(frozen=True)
+class BriefDescriptorParams:
+    """BRIEF descriptor (opencv-contrib) of ``descriptor_bytes`` bytes (16, 32 or 64)."""
+
+    name: str = "brief"
+    descriptor_bytes: int = 32
+    use_orientation: bool = False
+
+    def __post_init__(self) -> None:
+        require_name(self, "brief")
+        require_choice("descriptor_bytes", self.descriptor_bytes, (16, 32, 64))
+
+
+@dataclass(frozen=True)
+class OrbDescriptorParams:
+    """ORB (rotated BRIEF) descriptor, 32 bytes, WTA_K = 2 (Hamming distance).
+
+    A keypoint's ``octave`` selects its pyramid level, so on ORB keypoints keep ``scale_factor``
+    and ``n_levels`` equal to the detector's. ``edge_threshold``/``patch_size`` in pixels;
+    keypoints closer than that to the border are dropped.
+    """
+
+    name: str = "orb"
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    edge_threshold: int = 31
+    first_level: int = 0
+    patch_size: int = 31
+
+    def __post_init__(self) -> None:
+        require_name(self, "orb")
+        require_positive(n_levels=self.n_levels, patch_size=self.patch_size)
+        if not self.scale_factor > 1.0:
+            raise ValueError(f"scale_factor must be > 1, got {self.scale_factor!r}")
+
+
+@dataclass(frozen=True)
+class FreakDescriptorParams:
+    """FREAK descriptor (opencv-contrib, 64 bytes); ``pattern_scale`` in pixels."""
+
+    name: str = "freak"
+    orientation_normalized: bool = True
+    scale_normalized: bool = True
+    pattern_scale: float = 22.0
+    n_octaves: int = 4
+
+    def __post_init__(self) -> None:
+        require_name(self, "freak")
+        require_positive(pattern_scale=self.pattern_scale, n_octaves=self.n_octaves)
+
+
+AKAZE_DESCRIPTOR_TYPES = ("MLDB", "MLDB_UPRIGHT")
+
+
+@dataclass(frozen=True)
+class AkazeDescriptorParams:
+    """AKAZE's binary MLDB descriptor (``descriptor_size = 0``: full size, 61 bytes).
+
+    It rebuilds the nonlinear scale space and reads each keypoint's level from ``class_id``,
+    so the scale-space fields must equal the AKAZE detector's (the defaults do). The float KAZE
+    descriptor types are not offered: every descriptor here has one distance per name.
+    """
+
+    name: str = "akaze"
+    descriptor_type: str = "MLDB"
+    descriptor_size: int = 0
+    descriptor_channels: int = 3
+    threshold: float = 0.001
+    n_octaves: int = 4
+    n_octave_layers: int = 4
+    diffusivity: str = "DIFF_PM_G2"
+
+    def __post_init__(self) -> None:
+        require_name(self, "akaze")
+        require_choice("descriptor_type", self.descriptor_type, AKAZE_DESCRIPTOR_TYPES)
+        require_choice("descriptor_channels", self.descriptor_channels, (1, 2, 3))
+        require_choice("diffusivity", self.diffusivity, AKAZE_DIFFUSIVITIES)
+        require_positive(n_octaves=self.n_octaves, n_octave_layers=self.n_octave_layers)
+
+
+@dataclass(frozen=True)
+class SiftDescriptorParams:
+    """SIFT descriptor, 128 float32; ``sigma`` in pixels (the detector's defaults)."""
+
+    name: str = "sift"
+    n_octave_layers: int = 3
+    sigma: float = 1.6
+
+    def __post_init__(self) -> None:
+        require_name(self, "sift")
+        require_positive(n_octave_layers=self.n_octave_layers, sigma=self.sigma)
+
+
+DESCRIPTORS: dict[str, type] = {
+    "brisk": BriskDescriptorParams,
+    "brief": BriefDescriptorParams,
+    "orb": OrbDescriptorParams,
+    "freak": FreakDescriptorParams,
+    "akaze": AkazeDescriptorParams,
+    "sift": SiftDescriptorParams,
+}
+
+FLOAT_DESCRIPTORS = frozenset({"sift"})
+
+_AKAZE_REASON = (
+    "the AKAZE descriptor needs AKAZE keypoints: it reads the scale-space level from class_id, "
+    "which only the AKAZE detector sets (OpenCV asserts on class_id)"
+)
+_SIFT_ORB_REASON = (
+    "the ORB descriptor reads SIFT's packed octave as a pyramid level and fails inside OpenCV "
+    "(tries to allocate ~70 GB)"
+)
+
+#: (detector, descriptor) → why the pair cannot work. The one table of invalid pairs.
+INVALID_PAIRS: dict[tuple[str, str], str] = {
+    **{(det, "akaze"): _AKAZE_REASON for det in DETECTORS if det != "akaze"},
+    ("sift", "orb"): _SIFT_ORB_REASON,
+}
+
+
+class InvalidCombinationError(ValueError):
+    """A detector × descriptor pair that cannot work; ``reason`` says why."""
+
+    def __init__(self, detector: str, descriptor: str, reason: str) -> None:
+        self.detector, self.descriptor, self.reason = detector, descriptor, reason
+        super().__init__(f"detector {detector!r} with descriptor {descriptor!r}: {reason}")
+
+
+def is_binary(descriptor_name: str) -> bool:
+    """True for binary (uint8, Hamming) descriptors, False for float (L2) ones."""
+    if descriptor_name not in DESCRIPTORS:
+        raise ValueError(f"unknown descriptor {descriptor_name!r}; choose from {list(DESCRIPTORS)}")
+    return descriptor_name not in FLOAT_DESCRIPTORS
+
+
+def check_pair(detector: str, descriptor: str) -> None:
+    """Raise :class:`InvalidCombinationError` for an invalid pair, ValueError for unknown names."""
+    if detector not in DETECTORS:
+        raise ValueError(f"unknown detector {detector!r}; choose from {list(DETECTORS)}")
+    if descriptor not in DESCRIPTORS:
+        raise ValueError(f"unknown descriptor {descriptor!r}; choose from {list(DESCRIPTORS)}")
+    reason = INVALID_PAIRS.get((detector, descriptor))
+    if reason is not None:
+        raise InvalidCombinationError(detector, descriptor, reason)
+
+
+def valid_pairs() -> list[tuple[str, str]]:
+    """Every valid (detector, descriptor) pair, in registry order."""
+    return [(d, e) for d in DETECTORS for e in DESCRIPTORS if (d, e) not in INVALID_PAIRS]
+
+
+def _brisk(p: BriskDescriptorParams) -> Any:
+    return opencv_factory("BRISK")(30, 3, p.pattern_scale)  # thresholds unused by compute()
+
+
+def _brief(p: BriefDescriptorParams) -> Any:
+    create = opencv_factory("BriefDescriptorExtractor", contrib=True)
+    return create(p.descriptor_bytes, p.use_orientation)
+
+
+def _orb(p: OrbDescriptorParams) -> Any:
+    return opencv_factory("ORB")(
+        scaleFactor=p.scale_factor, nlevels=p.n_levels, edgeThreshold=p.edge_threshold,
+        firstLevel=p.first_level, WTA_K=2, patchSize=p.patch_size,
+    )  # fmt: skip
+
+
+def _freak(p: FreakDescriptorParams) -> Any:
+    create = opencv_factory("FREAK", contrib=True)
+    return create(p.orientation_normalized, p.scale_normalized, p.pattern_scale, p.n_octaves)
+
+
+def _akaze(p: AkazeDescriptorParams) -> Any:
+    return opencv_factory("AKAZE")(
+        descriptor_type=opencv_constant("AKAZE", f"DESCRIPTOR_{p.descriptor_type}"),
+        descriptor_size=p.descriptor_size, descriptor_channels=p.descriptor_channels,
+        threshold=p.threshold, nOctaves=p.n_octaves, nOctaveLayers=p.n_octave_layers,
+        diffusivity=opencv_constant("KAZE", p.diffusivity),
+    )  # fmt: skip
+
+
+def _sift(p: SiftDescriptorParams) -> Any:
+    return opencv_factory("SIFT")(nOctaveLayers=p.n_octave_layers, sigma=p.sigma)
+
+
+_EXTRACTORS: dict[str, Callable[[Any], Any]] = {
+    "brisk": _brisk,
+    "brief": _brief,
+    "orb": _orb,
+    "freak": _freak,
+    "akaze": _akaze,
+    "sift": _sift,
+}
+
+
+def make_extractor(params: Any) -> Any:
+    """The OpenCV descriptor extractor for ``params`` (one of the :data:`DESCRIPTORS` classes)."""
+    return _EXTRACTORS[params.name](params)
+
+
+def _empty_descriptors(extractor: Any) -> np.ndarray:
+    dtype = np.float32 if extractor.descriptorType() == cv2.CV_32F else np.uint8
+    return np.empty((0, extractor.descriptorSize()), dtype=dtype)
+
+
+def describe_keypoints(
+    gray: np.ndarray, keypoints: np.ndarray, detector_name: str, params: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """(kept keypoints (M, 7), descriptors (M, D)) of ``keypoints`` in a uint8 H × W image.
+
+    ``compute()`` drops keypoints (near the border) and may change them (BRISK and ORB set the
+    angle, SIFT and AKAZE read octave/class_id), so the keypoints it returns are returned; row i
+    of the descriptors belongs to row i of the kept keypoints. Raises
+    :class:`InvalidCombinationError` for an invalid pair before any work.
+    """
+    check_pair(detector_name, params.name)
+    check_gray(gray)
+    extractor = make_extractor(params)
+    if len(keypoints) == 0:
+        return empty_keypoints(), _empty_descriptors(extractor)
+    kept, descriptors = extractor.compute(gray, array_to_keypoints(keypoints))
+    if descriptors is None or len(kept) == 0:
+        return empty_keypoints(), _empty_descriptors(extractor)
+    return keypoints_to_array(kept), descriptors

@@ -1,0 +1,222 @@
+"""Descriptor matching between two frames: one expensive k=2 query, one cheap selection.
+
+The query set is the previous frame's descriptors and the train set the current frame's (the
+Udacity starter's source = previous, reference = current), so ``prev_idx`` indexes the
+previous frame's kept keypoints and ``curr_idx`` the current frame's.
+
+Design: :func:`knn_candidates` runs the only expensive call, a k = 2 nearest-neighbour query
+(BF or FLANN), and returns the two best candidates of every query as arrays (missing second —
+or first — neighbours get index −1 and distance +inf). :func:`select_matches` turns those
+candidates into :class:`Matches` for either selector: ``nn`` keeps the first neighbour of
+every query, ``knn`` keeps it when ``d0 < ratio · d1`` (a lone neighbour, d1 = inf, passes).
+The first neighbour of a k = 2 query is the k = 1 answer, so NN and kNN share one query and the
+stage cache keys matching by matcher only; selection costs microseconds.
+
+Distances: BF uses NORM_HAMMING for binary descriptors and NORM_L2 for float ones. FLANN uses
+an LSH index for binary (uint8) descriptors and randomised KD-trees for float (float32) ones;
+its distances are on the same scale as BF's (Hamming bits, L2 — not squared).
+
+Determinism: building a FLANN index draws random numbers from OpenCV's RNG (KD-tree split
+dimensions, LSH hash bits). Unseeded, two identical queries in one process returned different
+neighbours for ~25 % (LSH, ORB) and ~38 % (KD-tree, SIFT) of the queries on KITTI frames 0→1.
+:func:`knn_candidates` therefore calls ``cv2.setRNGSeed(FLANN_SEED)`` before every FLANN query
+(which reseeds the calling thread's OpenCV RNG), so equal inputs give equal matches in every
+process and worker. BF is exact and deterministic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from operator import attrgetter
+from typing import Any
+
+import cv2
+import numpy as np
+
+FLANN_SEED = 0
+FLANN_INDEX_KDTREE = 1
+FLANN_INDEX_LSH = 6
+MATCHERS = ("bf", "flann")
+SELECTORS = ("nn", "knn")
+
+_TRAIN_AND_DISTANCE = attrgetter("trainIdx", "distance")
+
+
+@dataclass(frozen=True)
+class MatcherParams:
+    """Nearest-neighbour search: ``bf`` (brute force) or ``flann``.
+
+    FLANN: ``flann_trees`` randomised KD-trees searched with ``flann_checks`` leaf checks
+    (float descriptors); LSH with ``lsh_table_number`` tables of ``lsh_key_size``-bit keys and
+    ``lsh_multi_probe_level`` (binary descriptors).
+    """
+
+    name: str = "bf"
+    flann_trees: int = 5
+    flann_checks: int = 50
+    lsh_table_number: int = 12
+    lsh_key_size: int = 20
+    lsh_multi_probe_level: int = 2
+
+    def __post_init__(self) -> None:
+        if self.name not in MATCHERS:
+            raise ValueError(f"matcher name must be one of {MATCHERS}, got {self.name!r}")
+        for field in ("flann_trees", "flann_checks", "lsh_table_number", "lsh_key_size"):
+            if getattr(self, field) <= 0:
+                raise ValueError(f"{field} must be > 0, got {getattr(self, field)!r}")
+        if self.lsh_multi_probe_level < 0:
+            raise ValueError(
+                f"lsh_multi_probe_level must be >= 0, got {self.lsh_multi_probe_level}"
+            )
+
+
+@dataclass(frozen=True)
+class SelectorParams:
+    """Match selection: ``nn`` (best neighbour) or ``knn`` (best if d0 < ``ratio`` · d1)."""
+
+    name: str = "knn"
+    k: int = 2
+    ratio: float = 0.8
+
+    def __post_init__(self) -> None:
+        if self.name not in SELECTORS:
+            raise ValueError(f"selector name must be one of {SELECTORS}, got {self.name!r}")
+        if self.k != 2:
+            raise ValueError(f"only k = 2 is supported (the ratio test), got k={self.k}")
+        if not 0.0 < self.ratio <= 1.0:
+            raise ValueError(f"ratio must be in (0, 1], got {self.ratio!r}")
+
+
+@dataclass(frozen=True)
+class Matches:
+    """K matches: ``prev_idx``/``curr_idx`` (int32) index the previous/current frame's kept
+    keypoints; ``distance`` (float32) is the descriptor distance (Hamming bits or L2)."""
+
+    prev_idx: np.ndarray
+    curr_idx: np.ndarray
+    distance: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.prev_idx)
+
+    @classmethod
+    def empty(cls) -> Matches:
+        """No matches."""
+        return cls(np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, np.float32))
+
+
+def empty_candidates(n_queries: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate arrays of ``n_queries`` queries without neighbours (idx −1, dist +inf)."""
+    return (
+        np.full((n_queries, 2), -1, dtype=np.int32),
+        np.full((n_queries, 2), np.inf, dtype=np.float32),
+    )
+
+
+def _rows(descriptors: np.ndarray | None) -> int:
+    return 0 if descriptors is None else len(descriptors)
+
+
+def _prepare(descriptors: np.ndarray, binary: bool) -> np.ndarray:
+    """C-contiguous uint8 (binary) or float32 (float) descriptors; ValueError otherwise."""
+    descriptors = np.asarray(descriptors)
+    if descriptors.ndim != 2:
+        raise ValueError(f"descriptors must be 2-D, got shape {descriptors.shape}")
+    if binary:
+        if descriptors.dtype != np.uint8:
+            raise ValueError(f"binary descriptors must be uint8, got {descriptors.dtype}")
+        return np.ascontiguousarray(descriptors)
+    return np.ascontiguousarray(descriptors, dtype=np.float32)
+
+
+def _make_matcher(binary: bool, params: MatcherParams) -> Any:
+    if params.name == "bf":
+        return cv2.BFMatcher(cv2.NORM_HAMMING if binary else cv2.NORM_L2, crossCheck=False)
+    if binary:
+        index = {
+            "algorithm": FLANN_INDEX_LSH,
+            "table_number": params.lsh_table_number,
+            "key_size": params.lsh_key_size,
+            "multi_probe_level": params.lsh_multi_probe_level,
+        }
+    else:
+        index = {"algorithm": FLANN_INDEX_KDTREE, "trees": params.flann_trees}
+    return cv2.FlannBasedMatcher(index, {"checks": params.flann_checks})
+
+
+def knn_results_to_arrays(results: Any, n_queries: int) -> tuple[np.ndarray, np.ndarray]:
+    """(idx int32 (Q, 2), dist float32 (Q, 2)) of OpenCV's per-query lists of ≤ 2 DMatch.
+
+    Row q holds query q's neighbours, best first; missing ones are −1 / +inf.
+    """
+    idx, dist = empty_candidates(n_queries)
+    lengths = np.fromiter(map(len, results), dtype=np.int64, count=n_queries)
+    flat = [m for ms in results for m in ms]
+    if not flat:
+        return idx, dist
+    pairs = np.array(list(map(_TRAIN_AND_DISTANCE, flat)), dtype=np.float64)
+    rows = np.repeat(np.arange(n_queries), lengths)
+    cols = np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    idx[rows, cols] = pairs[:, 0].astype(np.int32)
+    dist[rows, cols] = pairs[:, 1]
+    return idx, dist
+
+
+def knn_candidates(
+    desc_prev: np.ndarray | None,
+    desc_curr: np.ndarray | None,
+    binary: bool,
+    matcher: MatcherParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The two nearest current-frame descriptors of every previous-frame descriptor.
+
+    Returns ``idx`` int32 (Q, 2) into ``desc_curr`` and ``dist`` float32 (Q, 2), best first,
+    Q = len(desc_prev); missing neighbours are −1 / +inf. Empty or None input on either side
+    gives Q rows without neighbours (Q = 0 when ``desc_prev`` is empty or None).
+    """
+    n_prev, n_curr = _rows(desc_prev), _rows(desc_curr)
+    if n_prev == 0 or n_curr == 0:
+        return empty_candidates(n_prev)
+    query, train = _prepare(desc_prev, binary), _prepare(desc_curr, binary)
+    if query.shape[1] != train.shape[1]:
+        raise ValueError(f"descriptor widths differ: {query.shape[1]} vs {train.shape[1]}")
+    if matcher.name == "flann":
+        cv2.setRNGSeed(FLANN_SEED)
+    k = min(2, n_curr)  # FLANN asserts k <= index size
+    results = _make_matcher(binary, matcher).knnMatch(query, train, k=k)
+    return knn_results_to_arrays(results, n_prev)
+
+
+def select_matches(idx: np.ndarray, dist: np.ndarray, selector: SelectorParams) -> Matches:
+    """Matches chosen from k = 2 candidates (see the module docstring).
+
+    ``nn``: the first neighbour of every query that has one. ``knn``: the first neighbour when
+    ``dist[:, 0] < selector.ratio · dist[:, 1]`` (strict, as in the course).
+    """
+    idx, dist = np.asarray(idx), np.asarray(dist)
+    if len(idx) == 0:
+        return Matches.empty()
+    has_first = idx[:, 0] >= 0
+    if selector.name == "nn":
+        keep = has_first
+    else:
+        d0, d1 = dist[:, 0].astype(np.float64), dist[:, 1].astype(np.float64)
+        keep = has_first & (d0 < selector.ratio * d1)
+    rows = np.flatnonzero(keep)
+    return Matches(
+        prev_idx=rows.astype(np.int32),
+        curr_idx=idx[rows, 0].astype(np.int32),
+        distance=dist[rows, 0].astype(np.float32),
+    )
+
+
+def match_descriptors(
+    desc_prev: np.ndarray | None,
+    desc_curr: np.ndarray | None,
+    binary: bool,
+    matcher: MatcherParams,
+    selector: SelectorParams,
+) -> Matches:
+    """:func:`knn_candidates` followed by :func:`select_matches`."""
+    idx, dist = knn_candidates(desc_prev, desc_curr, binary, matcher)
+    return select_matches(idx, dist, selector)
