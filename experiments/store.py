@@ -95,8 +95,14 @@ def list_records(sweep_dir: Path) -> list[dict[str, Any]]:
 
 
 def collect(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Merge every run's rows and records into ``frames.parquet`` and ``runs.parquet``."""
+    """Merge every run's rows and records into ``frames.parquet`` and ``runs.parquet``.
+
+    Call it when no job of the sweep is running (end of a multirun, or after a kill): it also
+    deletes temporary files that killed jobs left behind.
+    """
     sweep_dir = Path(sweep_dir)
+    for stale in (sweep_dir / RUNS_DIR).glob(".*.tmp"):  # left by a killed job
+        stale.unlink(missing_ok=True)
     records = list_records(sweep_dir)
     runs = pd.DataFrame.from_records(records)
     frames_parts = []

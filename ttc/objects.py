@@ -100,9 +100,7 @@ class ObjectDetectorParams:
         if not 0.0 < self.nms_threshold <= 1.0:
             raise ValueError(f"nms_threshold must be in (0, 1], got {self.nms_threshold}")
         if not self.containment_threshold > 0.0:
-            raise ValueError(
-                f"containment_threshold must be > 0, got {self.containment_threshold}"
-            )
+            raise ValueError(f"containment_threshold must be > 0, got {self.containment_threshold}")
         if any(not isinstance(c, str) or not c for c in self.classes_kept):
             raise ValueError(f"classes_kept must be class names, got {list(self.classes_kept)}")
 

@@ -1,0 +1,179 @@
+"""Typed Hydra configuration: schemas for every config group, and config → core objects.
+
+Every option YAML in ``conf/<group>/`` starts with ``defaults: [/schema/<group>/<x>@_here_]``,
+so Hydra validates its keys and value types against the core's parameter dataclass: a typo
+in a key (``detector.treshold=5``) or a wrong type fails when the config is composed, before
+any job runs. The core's dataclasses are frozen; the schema nodes stored here are the same
+classes made writable, so YAML files and overrides can set their fields.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+
+from experiments.provenance import PROJECT_ROOT
+from ttc.box_matching import BoxMatchingParams
+from ttc.camera_ttc import CameraTTCParams
+from ttc.descriptors import DESCRIPTORS
+from ttc.keypoint_filter import KeypointFilterParams
+from ttc.keypoints import DETECTORS
+from ttc.lidar import LaneCropParams
+from ttc.lidar_ttc import LidarTTCParams
+from ttc.matching import MatcherParams, SelectorParams
+from ttc.objects import ObjectDetectorParams
+from ttc.pipeline import FrameRange, Settings
+
+#: Config groups whose options each pick one parameter class by name.
+NAMED_GROUPS: dict[str, dict[str, type]] = {"detector": DETECTORS, "descriptor": DESCRIPTORS}
+#: Config groups with one parameter class for all their options.
+SINGLE_CLASS_GROUPS: dict[str, type] = {
+    "matcher": MatcherParams,
+    "selector": SelectorParams,
+    "box_matching": BoxMatchingParams,
+    "lidar_ttc": LidarTTCParams,
+    "keypoint_filter": KeypointFilterParams,
+    "camera_ttc": CameraTTCParams,
+    "objects": ObjectDetectorParams,
+}
+#: The axes of a sweep, in the order of the results' columns.
+AXES = ("detector", "descriptor", "matcher", "selector", "box_matching", "lidar_ttc",
+        "keypoint_filter", "camera_ttc", "objects", "dataset")  # fmt: skip
+
+
+@dataclass
+class DatasetConfig:
+    """A frame range of one KITTI-raw recording under the data root."""
+
+    name: str = MISSING
+    root: str = MISSING  # data root (``$TTC_DATA_DIR`` or ../shared/data)
+    sequence: str = "kitti/2011_09_26"
+    first: int = 0
+    last: int = 18
+    step: int = 1
+    projection: str = "P_rect_02"
+    min_scan_points: int = 100_000
+
+
+@dataclass
+class LidarConfig:
+    """Lidar association: ego-lane crop and the shrink factor applied to boxes."""
+
+    crop: LaneCropParams = field(default_factory=LaneCropParams)
+    shrink: float = 0.10
+
+
+@dataclass
+class CacheConfig:
+    """Stage cache location; ``enabled=false`` recomputes every stage (benchmarks)."""
+
+    dir: str = MISSING
+    enabled: bool = True
+
+
+@dataclass
+class RunConfig:
+    """The root of the configuration (``conf/config.yaml`` fills it)."""
+
+    detector: Any = MISSING
+    descriptor: Any = MISSING
+    matcher: Any = MISSING
+    selector: Any = MISSING
+    box_matching: Any = MISSING
+    lidar_ttc: Any = MISSING
+    keypoint_filter: Any = MISSING
+    camera_ttc: Any = MISSING
+    objects: Any = MISSING
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    cache: CacheConfig = field(default_factory=CacheConfig)
+    results_root: str = MISSING
+    sweep_name: str = "adhoc"
+    cv_threads: int = 1  # OpenCV threads per job; jobs already use every core
+    force: bool = False  # recompute a run even when its record says complete
+    print_rows: int = 20
+
+
+def _writable(schema: type) -> DictConfig:
+    """A structured-config node of ``schema`` whose fields may be set (frozen or not)."""
+    node = OmegaConf.structured(schema)
+
+    def unfreeze(cfg: DictConfig) -> None:
+        OmegaConf.set_readonly(cfg, False)
+        for key in cfg:
+            child = cfg._get_node(key)
+            if isinstance(child, DictConfig):
+                unfreeze(child)
+
+    unfreeze(node)
+    return node
+
+
+def register_configs() -> None:
+    """Store the schemas in Hydra's ConfigStore and the ``project_root`` resolver."""
+    if not OmegaConf.has_resolver("project_root"):
+        OmegaConf.register_new_resolver("project_root", lambda: str(PROJECT_ROOT))
+    cs = ConfigStore.instance()
+    cs.store(name="ttc_schema", node=_writable(RunConfig))
+    for group, registry in NAMED_GROUPS.items():
+        for name, schema in registry.items():
+            cs.store(group=f"schema/{group}", name=name, node=_writable(schema))
+    for group, schema in SINGLE_CLASS_GROUPS.items():
+        cs.store(group="schema", name=group, node=_writable(schema))
+    cs.store(group="schema", name="dataset", node=_writable(DatasetConfig))
+
+
+def _to_object(node: DictConfig, schema: type) -> Any:
+    return schema(**OmegaConf.to_container(node, resolve=True))
+
+
+def settings_from_config(cfg: DictConfig) -> Settings:
+    """The core's :class:`Settings` for a composed config (raises ValueError on bad values)."""
+    return Settings(
+        detector=_to_object(cfg.detector, DETECTORS[cfg.detector.name]),
+        descriptor=_to_object(cfg.descriptor, DESCRIPTORS[cfg.descriptor.name]),
+        **{g: _to_object(cfg[g], schema) for g, schema in SINGLE_CLASS_GROUPS.items()},
+        lane=_to_object(cfg.lidar.crop, LaneCropParams),
+        lidar_shrink=float(cfg.lidar.shrink),
+    )
+
+
+def data_root(cfg: DictConfig) -> Path:
+    """The dataset's data root, resolved against the project root when relative."""
+    root = Path(os.path.expanduser(str(cfg.dataset.root)))
+    return root if root.is_absolute() else (PROJECT_ROOT / root).resolve()
+
+
+def frame_range_from_config(cfg: DictConfig) -> FrameRange:
+    """The core's :class:`FrameRange` for a composed config."""
+    ds = cfg.dataset
+    return FrameRange(
+        sequence_dir=data_root(cfg) / ds.sequence,
+        first=ds.first,
+        last=ds.last,
+        step=ds.step,
+        projection=ds.projection,
+        min_scan_points=ds.min_scan_points,
+    )
+
+
+def setting_config(cfg: DictConfig) -> dict[str, Any]:
+    """The part of the config that determines the numbers (no paths, no launcher)."""
+    container = OmegaConf.to_container(cfg, resolve=True)
+    setting = {axis: container[axis] for axis in AXES}
+    setting["dataset"] = {k: v for k, v in setting["dataset"].items() if k != "root"}
+    setting["lidar"] = container["lidar"]
+    return setting
+
+
+def run_id(cfg: DictConfig) -> str:
+    """Hash of :func:`setting_config`: equal configs give equal ids, across machines."""
+    text = json.dumps(setting_config(cfg), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -1,0 +1,118 @@
+"""One setting end to end on the real frames 0–18 (FAST + BRIEF + BF + kNN)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from experiments.schema import FRAME_COLUMNS, schema_problems
+from ttc import reasons
+from ttc.cache import StageCache
+from ttc.descriptors import DESCRIPTORS, InvalidCombinationError
+from ttc.frames import frame_files
+from ttc.keypoints import DETECTORS
+from ttc.lidar_ttc import LidarTTCParams
+from ttc.pipeline import FrameRange, Settings, run_setting
+
+RUN_COLUMNS = {"run_id", "sweep_id", "git_commit", "detector", "descriptor", "matcher",
+               "selector", "box_matching", "lidar_ttc", "keypoint_filter", "camera_ttc",
+               "objects", "dataset"}  # fmt: skip
+
+
+def check_frame_columns(frames: pd.DataFrame, core_only: bool = False) -> None:
+    """Every documented column is present with its documented type."""
+    problems = schema_problems(frames)
+    if core_only:
+        problems = [p for p in problems if p.split()[-1] not in RUN_COLUMNS]
+    assert not problems, problems
+    documented = {name for name, *_ in FRAME_COLUMNS}
+    assert set(frames.columns) <= documented, set(frames.columns) - documented
+
+
+def settings(detector: str = "fast", descriptor: str = "brief", **kwargs) -> Settings:
+    return Settings(detector=DETECTORS[detector](), descriptor=DESCRIPTORS[descriptor](), **kwargs)
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("stage-cache")
+
+
+@pytest.fixture(scope="module")
+def rows_0_18(kitti_dir: Path, cache_dir: Path) -> pd.DataFrame:
+    s = settings(lidar_ttc=LidarTTCParams(name="median"))
+    return run_setting(s, FrameRange(kitti_dir, 0, 18), StageCache(cache_dir))
+
+
+def test_every_pair_has_a_matched_lead_box(rows_0_18: pd.DataFrame) -> None:
+    lead = rows_0_18[rows_0_18["is_lead"]]
+    assert lead["frame"].tolist() == list(range(1, 19))
+    assert (lead["prev_box"] >= 0).all()
+    assert (lead["box_shared_matches"] > 0).all()
+
+
+def test_median_lidar_ttc_between_7_and_20_s(rows_0_18: pd.DataFrame) -> None:
+    lead = rows_0_18[rows_0_18["is_lead"]]
+    assert (lead["lidar_reason"] == reasons.OK).all()
+    assert lead["ttc_lidar"].between(7.0, 20.0).all(), lead[["frame", "ttc_lidar"]]
+    assert (lead["lidar_points_curr"] > 100).all()
+    assert lead["d_curr"].between(6.5, 8.1).all()
+
+
+def test_camera_ttc_mostly_finite_and_plausible(rows_0_18: pd.DataFrame) -> None:
+    lead = rows_0_18[rows_0_18["is_lead"]]
+    finite = lead[np.isfinite(lead["ttc_camera"])]
+    assert len(finite) >= 15
+    assert finite["ttc_camera"].median() == pytest.approx(12.5, abs=4.0)
+    assert (lead["matches_kept"] <= lead["matches_in_box"]).all()
+    assert (lead["matches_kept"] + lead["matches_removed"] == lead["matches_in_box"]).all()
+
+
+def test_columns_and_types(rows_0_18: pd.DataFrame) -> None:
+    check_frame_columns(rows_0_18, core_only=True)
+    other = rows_0_18[~rows_0_18["is_lead"]]
+    assert len(other) > 0  # the other matched boxes are kept too
+    assert not other.duplicated(["frame", "curr_box"]).any()
+    assert rows_0_18.groupby("frame")["is_lead"].sum().eq(1).all()  # exactly one lead per pair
+    assert (rows_0_18["error"] == "").all()
+
+
+def test_second_run_reads_every_stage_from_cache(
+    kitti_dir: Path, cache_dir: Path, rows_0_18
+) -> None:
+    again = run_setting(settings(lidar_ttc=LidarTTCParams(name="median")), FrameRange(kitti_dir, 0, 18),
+                        StageCache(cache_dir))  # fmt: skip
+    assert again.filter(like="cached_").to_numpy().all()
+    pd.testing.assert_series_equal(again["ttc_camera"], rows_0_18["ttc_camera"])
+    pd.testing.assert_series_equal(again["ttc_lidar"], rows_0_18["ttc_lidar"])
+
+
+def test_invalid_pair_raises_before_work(kitti_dir: Path, tmp_path: Path) -> None:
+    with pytest.raises(InvalidCombinationError):
+        run_setting(settings("fast", "akaze"), FrameRange(kitti_dir, 0, 2), StageCache(tmp_path))
+    assert not any(tmp_path.iterdir())
+
+
+def test_broken_frame_is_a_row_not_a_crash(kitti_dir: Path, tmp_path: Path) -> None:
+    """A damaged scan in the middle of the range gives error rows; other pairs still compute."""
+    for index in range(4):
+        files = frame_files(kitti_dir, index)
+        for src in (files.image, files.scan):
+            dst = tmp_path / src.relative_to(kitti_dir)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(src, dst)
+    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
+        shutil.copy(kitti_dir / name, tmp_path / name)
+    scan = frame_files(tmp_path, 2).scan
+    scan.write_bytes(scan.read_bytes()[:-3])
+    rows = run_setting(settings(), FrameRange(tmp_path, 0, 3), StageCache(None))
+    lead = rows[rows["is_lead"]].set_index("frame")
+    assert lead.loc[1, "lidar_reason"] == reasons.OK
+    for frame in (2, 3):
+        assert lead.loc[frame, "lidar_reason"] == reasons.FRAME_ERROR
+        assert "0000000002.bin" in lead.loc[frame, "error"]
+    check_frame_columns(rows, core_only=True)

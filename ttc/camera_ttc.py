@@ -1,0 +1,110 @@
+"""FP.4: camera time-to-collision from the scale change between matched keypoints.
+
+For every pair i < j of kept matches, the ratio ``r = d_curr / d_prev`` of their pixel distances
+in the current and previous frame measures the object's image scale change. A statistic of
+:data:`CAMERA_ESTIMATORS` reduces the ratios to one ``r``; the constant-velocity model gives
+``TTC = −dt / (1 − r)`` (seconds). Only pairs at least ``min_dist`` pixels apart in the current
+frame are used: short baselines turn pixel noise into large ratio errors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.distance import pdist
+
+from ttc import reasons
+
+#: Least previous-frame distance (pixels) of a usable pair: coincident keypoints give no ratio.
+MIN_PREV_DIST = 1e-9
+
+
+@dataclass(frozen=True)
+class CameraTTCParams:
+    """FP.4 ratio statistic and the least current-frame pair distance ``min_dist`` (pixels)."""
+
+    name: str = "median_ratio"
+    min_dist: float = 100.0
+
+    def __post_init__(self) -> None:
+        if self.name not in CAMERA_ESTIMATORS:
+            known = ", ".join(CAMERA_ESTIMATORS)
+            raise ValueError(f"unknown camera TTC estimator {self.name!r}; known: {known}")
+        if not self.min_dist >= 0:
+            raise ValueError(f"min_dist must be >= 0 pixels, got {self.min_dist}")
+
+
+def median_ratio(ratios: np.ndarray) -> float:
+    """Median of the distance ratios (robust to mismatched pairs)."""
+    return float(np.median(ratios))
+
+
+def mean_ratio(ratios: np.ndarray) -> float:
+    """Mean of the distance ratios (the Udacity lesson's first version)."""
+    return float(np.mean(ratios))
+
+
+#: FP.4 ratio statistics by name; all take the non-empty ratios (P,) and return one ratio.
+CAMERA_ESTIMATORS: dict[str, Callable[[np.ndarray], float]] = {
+    "median_ratio": median_ratio,
+    "mean_ratio": mean_ratio,
+}
+
+
+@dataclass(frozen=True)
+class CameraTTCResult:
+    """Camera TTC (seconds; NaN or +inf when degenerate, see ``reason``), the ratio statistic
+    (NaN when no pair was usable) and the number of pairs it used."""
+
+    ttc: float
+    ratio: float
+    n_pairs: int
+    reason: str
+
+
+def distance_ratios(prev_xy: np.ndarray, curr_xy: np.ndarray, min_dist: float) -> np.ndarray:
+    """Ratios ``d_curr / d_prev`` over the pairs i < j with ``d_curr ≥ min_dist`` (pixels)."""
+    if len(curr_xy) < 2:
+        return np.empty(0)
+    d_prev = pdist(prev_xy)
+    d_curr = pdist(curr_xy)
+    usable = (d_curr >= min_dist) & (d_prev > MIN_PREV_DIST)
+    return d_curr[usable] / d_prev[usable]
+
+
+def ttc_from_ratio(ratio: float, dt: float) -> float:
+    """Raw constant-velocity TTC ``−dt / (1 − r)`` (seconds; ±inf at r = 1)."""
+    with np.errstate(divide="ignore"):
+        return float(-dt / (1.0 - np.float64(ratio)))
+
+
+def camera_ttc(
+    prev_xy: np.ndarray, curr_xy: np.ndarray, dt: float, params: CameraTTCParams
+) -> CameraTTCResult:
+    """Camera TTC (seconds) from the kept matches' keypoints (K × 2 pixels, row k ↔ row k).
+
+    ``dt``: seconds between the frames. Degenerate cases return NaN (no matches, no usable
+    pair) or +inf (ratio exactly 1, or a shrinking image: receding) with a reason code; only
+    a non-positive ``dt`` or mismatched shapes raise (caller errors).
+    """
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive number of seconds, got {dt}")
+    prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
+    curr_xy = np.asarray(curr_xy, dtype=np.float64).reshape(-1, 2)
+    if prev_xy.shape != curr_xy.shape:
+        raise ValueError(f"prev_xy {prev_xy.shape} and curr_xy {curr_xy.shape} differ")
+    nan = float("nan")
+    if len(curr_xy) == 0:
+        return CameraTTCResult(nan, nan, 0, reasons.NO_MATCHES_IN_BOX)
+    ratios = distance_ratios(prev_xy, curr_xy, params.min_dist)
+    if len(ratios) == 0:
+        return CameraTTCResult(nan, nan, 0, reasons.TOO_FEW_PAIRS)
+    r = CAMERA_ESTIMATORS[params.name](ratios)
+    if r == 1.0:
+        return CameraTTCResult(float("inf"), r, len(ratios), reasons.RATIO_ONE)
+    ttc = ttc_from_ratio(r, dt)
+    if ttc < 0:
+        return CameraTTCResult(float("inf"), r, len(ratios), reasons.RECEDING)
+    return CameraTTCResult(ttc, r, len(ratios), reasons.OK)

@@ -1,0 +1,440 @@
+"""One setting end to end: frames → objects, lidar, keypoints, descriptors, matches → FP.1–FP.4.
+
+:func:`run_setting` takes a :class:`Settings` (one value per axis) and a :class:`FrameRange`
+and returns one row per (frame pair, matched box pair); the lead vehicle's row has
+``is_lead=True``. The expensive stages go through a :class:`~ttc.cache.StageCache`:
+
+============  =======================================================  ==============
+stage         key                                                      content
+============  =======================================================  ==============
+objects       image file, objects params                               YOLO boxes
+lidar         scan file, lane crop                                     lane points
+keypoints     image file, detector params                              (N, 7) array
+descriptors   image file, detector + descriptor params                 kept kps, desc
+matches       both image files, detector, descriptor, matcher params   k=2 candidates
+============  =======================================================  ==============
+
+NN and kNN selection share the k=2 candidates, so the selector is not part of the matches key.
+``STAGE_VERSIONS`` is part of every key: bump a stage's number when its code changes results.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from ttc import reasons
+from ttc.box_matching import BoxMatchingParams, count_shared_matches, match_boxes
+from ttc.cache import Lookup, StageCache, Task, cache_key
+from ttc.camera_ttc import CameraTTCParams, camera_ttc
+from ttc.descriptors import check_pair, describe_keypoints, is_binary
+from ttc.frames import (
+    Calibration,
+    FrameDataError,
+    file_identity,
+    frame_files,
+    frame_indices,
+    frame_interval,
+    load_calibration,
+    read_image,
+    read_lidar_scan,
+)
+from ttc.keypoint_filter import KeypointFilterParams, filter_box_matches
+from ttc.keypoints import X, Y, detect_keypoints
+from ttc.lidar import LaneCropParams, assign_points_to_boxes, crop_to_lane, project_to_image
+from ttc.lidar_ttc import LidarTTCParams, lidar_ttc
+from ttc.matching import MatcherParams, SelectorParams, knn_candidates, select_matches
+from ttc.objects import ObjectDetectorParams, detect_objects
+
+STAGE_VERSIONS = {"objects": 1, "lidar": 1, "keypoints": 1, "descriptors": 1, "matches": 1}
+CACHED_STAGES = tuple(STAGE_VERSIONS)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """One value of every axis of a sweep (each a params dataclass of its stage)."""
+
+    detector: Any
+    descriptor: Any
+    matcher: MatcherParams = field(default_factory=MatcherParams)
+    selector: SelectorParams = field(default_factory=SelectorParams)
+    box_matching: BoxMatchingParams = field(default_factory=BoxMatchingParams)
+    lidar_ttc: LidarTTCParams = field(default_factory=LidarTTCParams)
+    keypoint_filter: KeypointFilterParams = field(default_factory=KeypointFilterParams)
+    camera_ttc: CameraTTCParams = field(default_factory=CameraTTCParams)
+    objects: ObjectDetectorParams = field(default_factory=ObjectDetectorParams)
+    lane: LaneCropParams = field(default_factory=LaneCropParams)
+    lidar_shrink: float = 0.10
+
+    def axes(self) -> dict[str, str]:
+        """The name chosen on every axis, e.g. ``{"detector": "fast", ...}``."""
+        return {
+            f.name: getattr(self, f.name).name
+            for f in dataclasses.fields(self)
+            if hasattr(getattr(self, f.name), "name")
+        }
+
+
+@dataclass(frozen=True)
+class FrameRange:
+    """Frames ``first..last`` (every ``step``-th) of one KITTI-raw recording folder."""
+
+    sequence_dir: Path
+    first: int = 0
+    last: int = 18
+    step: int = 1
+    projection: str = "P_rect_02"
+    min_scan_points: int = 100_000
+
+    @property
+    def indices(self) -> list[int]:
+        return frame_indices(self.first, self.last, self.step)
+
+    @property
+    def dt(self) -> float:
+        """Seconds between two processed frames."""
+        return frame_interval(self.step)
+
+
+def _params(obj: Any) -> dict[str, Any]:
+    return dataclasses.asdict(obj)
+
+
+class _FrameStages:
+    """Cache tasks of one job, created lazily and shared between the pairs that need them."""
+
+    def __init__(self, settings: Settings, frames: FrameRange, cache: StageCache) -> None:
+        self.settings, self.frames, self.cache = settings, frames, cache
+        self.binary = is_binary(settings.descriptor.name)
+        self._tasks: dict[tuple, Task] = {}
+        self._images: dict[int, np.ndarray] = {}
+        self._grays: dict[int, np.ndarray] = {}
+
+    def _image(self, index: int) -> np.ndarray:
+        if index not in self._images:
+            self._images[index] = read_image(frame_files(self.frames.sequence_dir, index).image)
+        return self._images[index]
+
+    def _gray(self, index: int) -> np.ndarray:
+        if index not in self._grays:
+            self._grays[index] = cv2.cvtColor(self._image(index), cv2.COLOR_BGR2GRAY)
+        return self._grays[index]
+
+    def _task(self, stage: str, ident: tuple, parts: tuple, compute: Callable[[], dict]) -> Task:
+        if (stage, ident) not in self._tasks:
+            key = cache_key(stage, STAGE_VERSIONS[stage], *parts)
+            self._tasks[(stage, ident)] = Task(stage, key, compute)
+        return self._tasks[(stage, ident)]
+
+    def _image_id(self, index: int) -> tuple:
+        return file_identity(frame_files(self.frames.sequence_dir, index).image)
+
+    def objects(self, index: int) -> Task:
+        params = self.settings.objects
+
+        def compute() -> dict:
+            det = detect_objects(self._image(index), params)
+            return {"class_id": det.class_id, "confidence": det.confidence, "roi": det.roi}
+
+        return self._task("objects", (index,), (self._image_id(index), _params(params)), compute)
+
+    def lidar(self, index: int) -> Task:
+        path = frame_files(self.frames.sequence_dir, index).scan
+        crop = self.settings.lane
+
+        def compute() -> dict:
+            scan = read_lidar_scan(path)
+            return {
+                "points": crop_to_lane(scan.points, crop),
+                "n_scan": np.int64(len(scan)),
+                "n_dropped": np.int64(scan.n_dropped),
+            }
+
+        return self._task("lidar", (index,), (file_identity(path), _params(crop)), compute)
+
+    def keypoints(self, index: int) -> Task:
+        params = self.settings.detector
+
+        def compute() -> dict:
+            return {"keypoints": detect_keypoints(self._gray(index), params)}
+
+        return self._task("keypoints", (index,), (self._image_id(index), _params(params)), compute)
+
+    def descriptors(self, index: int) -> Task:
+        det, desc = self.settings.detector, self.settings.descriptor
+
+        def compute() -> dict:
+            keypoints = self.cache.get(self.keypoints(index)).arrays["keypoints"]
+            kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
+            return {"keypoints": kept, "descriptors": descriptors}
+
+        parts = (self._image_id(index), _params(det), _params(desc))
+        return self._task("descriptors", (index,), parts, compute)
+
+    def matches(self, prev: int, curr: int) -> Task:
+        s = self.settings
+
+        def compute() -> dict:
+            d_prev = self.cache.get(self.descriptors(prev)).arrays["descriptors"]
+            d_curr = self.cache.get(self.descriptors(curr)).arrays["descriptors"]
+            idx, dist = knn_candidates(d_prev, d_curr, self.binary, s.matcher)
+            return {"idx": idx, "dist": dist}
+
+        parts = (
+            self._image_id(prev),
+            self._image_id(curr),
+            _params(s.detector),
+            _params(s.descriptor),
+            _params(s.matcher),
+        )
+        return self._task("matches", (prev, curr), parts, compute)
+
+
+#: FP.2–FP.4 columns of a box pair that could not be evaluated (types as in a full row).
+EMPTY_BOX_RESULT: dict[str, Any] = {
+    "ttc_lidar": np.nan, "lidar_reason": "", "d_prev": np.nan, "d_curr": np.nan,
+    "lidar_points_prev": 0, "lidar_points_curr": 0, "lidar_outliers_prev": 0,
+    "lidar_outliers_curr": 0, "lidar_closest_prev": np.nan, "lidar_closest_curr": np.nan,
+    "lidar_median_prev": np.nan, "lidar_median_curr": np.nan, "ttc_camera": np.nan,
+    "camera_reason": "", "camera_ratio": np.nan, "camera_pairs": 0, "matches_in_box": 0,
+    "matches_kept": 0, "matches_removed": 0, "ms_lidar_ttc": 0.0, "ms_keypoint_filter": 0.0,
+    "ms_camera_ttc": 0.0,
+}  # fmt: skip
+
+
+def _error_row(prev: int, curr: int, dt: float, error: Exception) -> dict[str, Any]:
+    """The one row of a frame pair whose input could not be read."""
+    row: dict[str, Any] = {
+        "prev_frame": prev, "frame": curr, "dt": dt, "scan_points_prev": 0,
+        "scan_points_curr": 0, "scan_short": False, "scan_dropped_curr": 0,
+        "lane_points_curr": 0, "boxes_prev": 0, "boxes_curr": 0, "keypoints_prev": 0,
+        "keypoints_curr": 0, "described_curr": 0, "matches_total": 0,
+        **{f"ms_{stage}": 0.0 for stage in ("objects", "lidar", "keypoints", "descriptors",
+                                             "matching", "box_matching")},
+        **{f"cached_{stage}": False for stage in CACHED_STAGES},
+        "prev_box": -1, "curr_box": -1, "is_lead": True, "box_class": -1,
+        "box_confidence": np.nan, "box_x": -1, "box_y": -1, "box_w": -1, "box_h": -1,
+        **EMPTY_BOX_RESULT, "lidar_reason": reasons.FRAME_ERROR,
+        "camera_reason": reasons.FRAME_ERROR, "box_shared_matches": 0, "error": str(error),
+    }  # fmt: skip
+    return row
+
+
+def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
+    start = time.perf_counter()
+    out = fn()
+    return out, 1e3 * (time.perf_counter() - start)
+
+
+def _lane_points_per_box(points: np.ndarray, rois: np.ndarray, calib: Calibration, shrink: float):
+    uv = project_to_image(points[:, :3], calib.velo_to_image)
+    return assign_points_to_boxes(uv, rois, shrink)
+
+
+def _pairs(indices: list[int]) -> Iterator[tuple[int, int]]:
+    return zip(indices[:-1], indices[1:], strict=True)
+
+
+def run_setting(
+    settings: Settings,
+    frames: FrameRange,
+    cache: StageCache | None = None,
+    calibration: Calibration | None = None,
+) -> pd.DataFrame:
+    """TTC rows for every consecutive frame pair of ``frames`` under one setting.
+
+    Raises :class:`ttc.descriptors.InvalidCombinationError` before any work for an invalid
+    detector × descriptor pair and :class:`ttc.frames.FrameDataError` for unreadable input;
+    every degenerate TTC case is a row with NaN/inf and a reason code instead.
+    """
+    check_pair(settings.detector.name, settings.descriptor.name)
+    cache = cache if cache is not None else StageCache(None)
+    calib = calibration or load_calibration(frames.sequence_dir, frames.projection)
+    stages = _FrameStages(settings, frames, cache)
+    indices = frames.indices
+    if len(indices) < 2:
+        raise ValueError(f"need at least two frames, got {indices}")
+
+    # Cooperative fill: per-frame stages first, then pair matches; entries another worker is
+    # computing right now are deferred (see StageCache.resolve).
+    per_frame: dict[str, dict[int, Lookup]] = {}
+    broken: dict[int, Exception] = {}
+    for name in ("objects", "lidar", "keypoints", "descriptors"):
+        todo = [i for i in indices if i not in broken]
+        found = cache.resolve([getattr(stages, name)(i) for i in todo], errors=(FrameDataError,))
+        per_frame[name] = {}
+        for i, out in zip(todo, found, strict=True):
+            if isinstance(out, Exception):
+                broken[i] = out
+            else:
+                per_frame[name][i] = out
+    pairs = list(_pairs(indices))
+    good = [(p, c) for p, c in pairs if p not in broken and c not in broken]
+    matches = dict(zip(good, cache.resolve([stages.matches(p, c) for p, c in good]), strict=True))
+
+    rows: list[dict[str, Any]] = []
+    for prev, curr in pairs:
+        if (prev, curr) in matches:
+            rows.extend(
+                _pair_rows(settings, frames, calib, prev, curr, per_frame, matches[(prev, curr)])
+            )
+        else:
+            rows.append(_error_row(prev, curr, frames.dt, broken.get(curr) or broken[prev]))
+    return pd.DataFrame.from_records(rows)
+
+
+def _pair_rows(
+    s: Settings,
+    frames: FrameRange,
+    calib: Calibration,
+    prev: int,
+    curr: int,
+    per_frame: dict[str, dict[int, Lookup]],
+    match_lookup: Lookup,
+) -> list[dict[str, Any]]:
+    """FP.1–FP.4 for one frame pair: one row per matched box pair (lead first)."""
+    obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
+    lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
+    desc = {i: per_frame["descriptors"][i].arrays for i in (prev, curr)}
+    kp_prev, kp_curr = desc[prev]["keypoints"], desc[curr]["keypoints"]
+    xy_prev, xy_curr = kp_prev[:, [X, Y]], kp_curr[:, [X, Y]]
+
+    selected, ms_select = _timed(
+        lambda: select_matches(match_lookup.arrays["idx"], match_lookup.arrays["dist"], s.selector)
+    )
+
+    # FP.1 box matching
+    def fp1():
+        counts = count_shared_matches(
+            xy_prev, xy_curr, selected.prev_idx, selected.curr_idx,
+            obj[prev]["roi"], obj[curr]["roi"], s.box_matching.shrink,
+        )  # fmt: skip
+        return match_boxes(counts, s.box_matching)
+
+    box_matches, ms_fp1 = _timed(fp1)
+
+    # Lead object: the current box holding most lane lidar points.
+    owners, ms_assoc = _timed(
+        lambda: {
+            i: _lane_points_per_box(lane[i]["points"], obj[i]["roi"], calib, s.lidar_shrink)
+            for i in (prev, curr)
+        }
+    )
+    n_curr_boxes = len(obj[curr]["roi"])
+    counts_curr = np.bincount(owners[curr][owners[curr] >= 0], minlength=n_curr_boxes)
+    lead_box = int(np.argmax(counts_curr)) if n_curr_boxes and counts_curr.max() > 0 else -1
+
+    box_pairs = list(zip(box_matches.prev_box.tolist(), box_matches.curr_box.tolist(), strict=True))
+    shared = dict(zip(box_matches.curr_box.tolist(), box_matches.shared.tolist(), strict=True))
+    curr_boxes = [c for _, c in box_pairs]
+    if lead_box >= 0 and lead_box in curr_boxes:
+        box_pairs.sort(key=lambda pc: pc[1] != lead_box)
+    else:
+        box_pairs.insert(0, (-1, lead_box))  # the lead row is always present
+
+    base = {
+        "prev_frame": prev,
+        "frame": curr,
+        "dt": frames.dt,
+        "scan_points_prev": int(lane[prev]["n_scan"]),
+        "scan_points_curr": int(lane[curr]["n_scan"]),
+        "scan_short": bool(lane[curr]["n_scan"] < frames.min_scan_points),
+        "scan_dropped_curr": int(lane[curr]["n_dropped"]),
+        "lane_points_curr": int(len(lane[curr]["points"])),
+        "boxes_prev": len(obj[prev]["roi"]),
+        "boxes_curr": n_curr_boxes,
+        "keypoints_prev": int(per_frame["keypoints"][prev].arrays["keypoints"].shape[0]),
+        "keypoints_curr": int(per_frame["keypoints"][curr].arrays["keypoints"].shape[0]),
+        "described_curr": int(kp_curr.shape[0]),
+        "matches_total": int(len(selected.prev_idx)),
+        "ms_objects": per_frame["objects"][curr].ms,
+        "ms_lidar": per_frame["lidar"][curr].ms + ms_assoc,
+        "ms_keypoints": per_frame["keypoints"][curr].ms,
+        "ms_descriptors": per_frame["descriptors"][curr].ms,
+        "ms_matching": match_lookup.ms + ms_select,
+        "ms_box_matching": ms_fp1,
+    }
+    for stage in CACHED_STAGES:
+        lookup = match_lookup if stage == "matches" else per_frame[stage][curr]
+        base[f"cached_{stage}"] = lookup.cached
+
+    rows = []
+    for prev_box, curr_box in box_pairs:
+        row = dict(base)
+        row.update(
+            _box_row(s, frames.dt, prev_box, curr_box, lead_box, obj, lane, owners, prev, curr,
+                     xy_prev, xy_curr, selected)
+        )  # fmt: skip
+        row["box_shared_matches"] = shared.get(curr_box, 0) if prev_box >= 0 else 0
+        row["error"] = ""
+        rows.append(row)
+    return rows
+
+
+def _box_row(s, dt, prev_box, curr_box, lead_box, obj, lane, owners, prev, curr,
+             xy_prev, xy_curr, selected) -> dict[str, Any]:  # fmt: skip
+    """FP.2–FP.4 for one matched box pair (prev_box = −1: the lead box found no match)."""
+    row: dict[str, Any] = {
+        "prev_box": prev_box,
+        "curr_box": curr_box,
+        "is_lead": curr_box == lead_box and curr_box >= 0,
+    }
+    if curr_box >= 0:
+        roi = obj[curr]["roi"][curr_box]
+        row.update(
+            box_class=int(obj[curr]["class_id"][curr_box]),
+            box_confidence=float(obj[curr]["confidence"][curr_box]),
+            box_x=int(roi[0]), box_y=int(roi[1]), box_w=int(roi[2]), box_h=int(roi[3]),
+        )  # fmt: skip
+    else:
+        row.update(box_class=-1, box_confidence=np.nan, box_x=-1, box_y=-1, box_w=-1, box_h=-1)
+
+    if prev_box < 0:
+        reason = reasons.NO_LEAD_BOX if curr_box < 0 else reasons.NO_BOX_MATCH
+        row.update(EMPTY_BOX_RESULT, lidar_reason=reason, camera_reason=reason)
+        if curr_box >= 0:
+            row["lidar_points_curr"] = int(np.sum(owners[curr] == curr_box))
+        return row
+
+    # FP.2 lidar TTC
+    pts_prev = lane[prev]["points"][owners[prev] == prev_box][:, :3]
+    pts_curr = lane[curr]["points"][owners[curr] == curr_box][:, :3]
+    lid, ms_fp2 = _timed(lambda: lidar_ttc(pts_prev, pts_curr, dt, s.lidar_ttc))
+    row.update(
+        ttc_lidar=lid.ttc, lidar_reason=lid.reason, d_prev=lid.d_prev, d_curr=lid.d_curr,
+        lidar_points_prev=len(pts_prev), lidar_points_curr=len(pts_curr),
+        lidar_outliers_prev=lid.outliers_prev, lidar_outliers_curr=lid.outliers_curr,
+        lidar_closest_prev=float(pts_prev[:, 0].min()) if len(pts_prev) else np.nan,
+        lidar_closest_curr=float(pts_curr[:, 0].min()) if len(pts_curr) else np.nan,
+        lidar_median_prev=float(np.median(pts_prev[:, 0])) if len(pts_prev) else np.nan,
+        lidar_median_curr=float(np.median(pts_curr[:, 0])) if len(pts_curr) else np.nan,
+        ms_lidar_ttc=ms_fp2,
+    )  # fmt: skip
+
+    # FP.3 keypoint matches of the box, outliers out
+    def fp3():
+        return filter_box_matches(
+            xy_prev, xy_curr, selected.prev_idx, selected.curr_idx,
+            obj[curr]["roi"][curr_box], s.box_matching.shrink, s.keypoint_filter,
+        )  # fmt: skip
+
+    filt, ms_fp3 = _timed(fp3)
+    kept_prev = xy_prev[selected.prev_idx[filt.kept]]
+    kept_curr = xy_curr[selected.curr_idx[filt.kept]]
+
+    # FP.4 camera TTC
+    cam, ms_fp4 = _timed(lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc))
+    row.update(
+        ttc_camera=cam.ttc, camera_reason=cam.reason, camera_ratio=cam.ratio,
+        camera_pairs=cam.n_pairs, matches_in_box=filt.n_in_box, matches_kept=filt.n_kept,
+        matches_removed=filt.n_removed, ms_keypoint_filter=ms_fp3, ms_camera_ttc=ms_fp4,
+    )  # fmt: skip
+    return row
