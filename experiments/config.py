@@ -79,6 +79,14 @@ class CacheConfig:
 
 
 @dataclass
+class ShowConfig:
+    """Pictures of one frame / frame pair (``python -m experiments.show``)."""
+
+    frame: int = 1  # current frame; the previous is frame - dataset.step
+    out_dir: str = "${results_root}/pictures"
+
+
+@dataclass
 class RunConfig:
     """The root of the configuration (``conf/config.yaml`` fills it)."""
 
@@ -94,6 +102,7 @@ class RunConfig:
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
     cache: CacheConfig = field(default_factory=CacheConfig)
+    show: ShowConfig = field(default_factory=ShowConfig)
     results_root: str = MISSING
     sweep_name: str = "adhoc"
     cv_threads: int = 1  # OpenCV threads per job; jobs already use every core

@@ -234,11 +234,6 @@ def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
     return out, 1e3 * (time.perf_counter() - start)
 
 
-def _lane_points_per_box(points: np.ndarray, rois: np.ndarray, calib: Calibration, shrink: float):
-    uv = project_to_image(points[:, :3], calib.velo_to_image)
-    return assign_points_to_boxes(uv, rois, shrink)
-
-
 def _pairs(indices: list[int]) -> Iterator[tuple[int, int]]:
     return zip(indices[:-1], indices[1:], strict=True)
 
@@ -258,13 +253,29 @@ def run_setting(
     check_pair(settings.detector.name, settings.descriptor.name)
     cache = cache if cache is not None else StageCache(None)
     calib = calibration or load_calibration(frames.sequence_dir, frames.projection)
-    stages = _FrameStages(settings, frames, cache)
+    per_frame, matches, broken = _resolve_stages(settings, frames, cache)
+    rows: list[dict[str, Any]] = []
+    for prev, curr in _pairs(frames.indices):
+        if (prev, curr) in matches:
+            rows.extend(
+                _pair_rows(settings, frames, calib, prev, curr, per_frame, matches[(prev, curr)])
+            )
+        else:
+            rows.append(_error_row(prev, curr, frames.dt, broken.get(curr) or broken[prev]))
+    return pd.DataFrame.from_records(rows)
+
+
+def _resolve_stages(settings: Settings, frames: FrameRange, cache: StageCache):
+    """Every cached stage of a frame range: per-frame lookups, pair matches, broken frames.
+
+    Cooperative fill: per-frame stages first, then pair matches; entries another worker is
+    computing right now are deferred (see :meth:`StageCache.resolve`). A frame whose input
+    cannot be read is returned in ``broken`` with its error instead of stopping the run.
+    """
     indices = frames.indices
     if len(indices) < 2:
         raise ValueError(f"need at least two frames, got {indices}")
-
-    # Cooperative fill: per-frame stages first, then pair matches; entries another worker is
-    # computing right now are deferred (see StageCache.resolve).
+    stages = _FrameStages(settings, frames, cache)
     per_frame: dict[str, dict[int, Lookup]] = {}
     broken: dict[int, Exception] = {}
     for name in ("objects", "lidar", "keypoints", "descriptors"):
@@ -276,19 +287,65 @@ def run_setting(
                 broken[i] = out
             else:
                 per_frame[name][i] = out
-    pairs = list(_pairs(indices))
-    good = [(p, c) for p, c in pairs if p not in broken and c not in broken]
+    good = [(p, c) for p, c in _pairs(indices) if p not in broken and c not in broken]
     matches = dict(zip(good, cache.resolve([stages.matches(p, c) for p, c in good]), strict=True))
+    return per_frame, matches, broken
 
-    rows: list[dict[str, Any]] = []
-    for prev, curr in pairs:
-        if (prev, curr) in matches:
-            rows.extend(
-                _pair_rows(settings, frames, calib, prev, curr, per_frame, matches[(prev, curr)])
-            )
-        else:
-            rows.append(_error_row(prev, curr, frames.dt, broken.get(curr) or broken[prev]))
-    return pd.DataFrame.from_records(rows)
+
+@dataclass
+class PairDetail:
+    """Intermediate arrays of one frame pair under one setting (for pictures and reports).
+
+    Pixel coordinates for keypoints and boxes; lidar points in metres (Velodyne frame).
+    ``kept`` / ``removed`` index ``matches`` (the lead box's FP.3 outcome).
+    """
+
+    prev: int
+    curr: int
+    images: dict[int, np.ndarray]
+    objects: dict[int, dict[str, np.ndarray]]
+    keypoints: dict[int, np.ndarray]
+    matches: Any
+    box_matches: Any
+    lane_points: dict[int, np.ndarray]
+    lane_uv: dict[int, np.ndarray]
+    lane_owner: dict[int, np.ndarray]
+    lead_box: int
+    kept: np.ndarray
+    removed: np.ndarray
+    rows: pd.DataFrame
+
+
+def pair_detail(
+    settings: Settings, frames: FrameRange, prev: int, curr: int, cache: StageCache | None = None
+) -> PairDetail:
+    """Run one frame pair and keep every intermediate array (for pictures)."""
+    check_pair(settings.detector.name, settings.descriptor.name)
+    cache = cache if cache is not None else StageCache(None)
+    calib = load_calibration(frames.sequence_dir, frames.projection)
+    pair = dataclasses.replace(frames, first=prev, last=curr, step=curr - prev)
+    per_frame, matches, broken = _resolve_stages(settings, pair, cache)
+    if broken:
+        raise next(iter(broken.values()))
+    detail: dict[str, Any] = {}
+    rows = _pair_rows(settings, pair, calib, prev, curr, per_frame, matches[(prev, curr)], detail)
+    empty = np.zeros(0, dtype=np.int64)
+    return PairDetail(
+        prev=prev,
+        curr=curr,
+        images={i: read_image(frame_files(frames.sequence_dir, i).image) for i in (prev, curr)},
+        objects={i: per_frame["objects"][i].arrays for i in (prev, curr)},
+        keypoints={i: per_frame["descriptors"][i].arrays["keypoints"] for i in (prev, curr)},
+        matches=detail["matches"],
+        box_matches=detail["box_matches"],
+        lane_points={i: per_frame["lidar"][i].arrays["points"] for i in (prev, curr)},
+        lane_uv=detail["uv"],
+        lane_owner=detail["owners"],
+        lead_box=detail["lead_box"],
+        kept=detail.get("kept", empty),
+        removed=detail.get("removed", empty),
+        rows=pd.DataFrame.from_records(rows),
+    )
 
 
 def _pair_rows(
@@ -299,8 +356,12 @@ def _pair_rows(
     curr: int,
     per_frame: dict[str, dict[int, Lookup]],
     match_lookup: Lookup,
+    detail: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """FP.1–FP.4 for one frame pair: one row per matched box pair (lead first)."""
+    """FP.1–FP.4 for one frame pair: one row per matched box pair (lead first).
+
+    ``detail``, when given, receives the intermediate arrays (see :class:`PairDetail`).
+    """
     obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
     lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
     desc = {i: per_frame["descriptors"][i].arrays for i in (prev, curr)}
@@ -322,12 +383,13 @@ def _pair_rows(
     box_matches, ms_fp1 = _timed(fp1)
 
     # Lead object: the current box holding most lane lidar points.
-    owners, ms_assoc = _timed(
-        lambda: {
-            i: _lane_points_per_box(lane[i]["points"], obj[i]["roi"], calib, s.lidar_shrink)
-            for i in (prev, curr)
+    def associate():
+        uv = {
+            i: project_to_image(lane[i]["points"][:, :3], calib.velo_to_image) for i in (prev, curr)
         }
-    )
+        return uv, {i: assign_points_to_boxes(uv[i], obj[i]["roi"], s.lidar_shrink) for i in uv}
+
+    (uv, owners), ms_assoc = _timed(associate)
     n_curr_boxes = len(obj[curr]["roi"])
     counts_curr = np.bincount(owners[curr][owners[curr] >= 0], minlength=n_curr_boxes)
     lead_box = int(np.argmax(counts_curr)) if n_curr_boxes and counts_curr.max() > 0 else -1
@@ -366,12 +428,15 @@ def _pair_rows(
         lookup = match_lookup if stage == "matches" else per_frame[stage][curr]
         base[f"cached_{stage}"] = lookup.cached
 
+    if detail is not None:
+        detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
+                      lead_box=lead_box)  # fmt: skip
     rows = []
     for prev_box, curr_box in box_pairs:
         row = dict(base)
         row.update(
             _box_row(s, frames.dt, prev_box, curr_box, lead_box, obj, lane, owners, prev, curr,
-                     xy_prev, xy_curr, selected)
+                     xy_prev, xy_curr, selected, detail if curr_box == lead_box else None)
         )  # fmt: skip
         row["box_shared_matches"] = shared.get(curr_box, 0) if prev_box >= 0 else 0
         row["error"] = ""
@@ -380,7 +445,7 @@ def _pair_rows(
 
 
 def _box_row(s, dt, prev_box, curr_box, lead_box, obj, lane, owners, prev, curr,
-             xy_prev, xy_curr, selected) -> dict[str, Any]:  # fmt: skip
+             xy_prev, xy_curr, selected, detail=None) -> dict[str, Any]:  # fmt: skip
     """FP.2–FP.4 for one matched box pair (prev_box = −1: the lead box found no match)."""
     row: dict[str, Any] = {
         "prev_box": prev_box,
@@ -427,6 +492,8 @@ def _box_row(s, dt, prev_box, curr_box, lead_box, obj, lane, owners, prev, curr,
         )  # fmt: skip
 
     filt, ms_fp3 = _timed(fp3)
+    if detail is not None:
+        detail.update(kept=filt.kept, removed=filt.removed)
     kept_prev = xy_prev[selected.prev_idx[filt.kept]]
     kept_curr = xy_curr[selected.curr_idx[filt.kept]]
 
