@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -65,7 +66,14 @@ class SweepCallback(Callback):
         thread.start()
 
     def _poll(self, progress: Path, total: int | None, stop: threading.Event) -> None:
-        with tqdm(total=total, desc="settings", unit="setting", dynamic_ncols=True) as bar:
+        interactive = sys.stderr.isatty()
+        with tqdm(
+            total=total,
+            desc="settings",
+            unit="setting",
+            dynamic_ncols=True,
+            mininterval=0.5 if interactive else 15.0,  # logs get a line every 15 s, not a flood
+        ) as bar:
             while True:
                 stopping = stop.wait(self.poll_seconds)
                 done = sum(1 for _ in progress.iterdir())

@@ -171,3 +171,13 @@ def test_kill_and_resume(tmp_path: Path) -> None:
     for entry in (tmp_path / "cache").rglob("*.npz"):  # every cache entry is whole
         with np.load(entry) as data:
             assert data.files
+
+
+def test_submitit_local_launcher(tmp_path: Path) -> None:
+    """The Slurm path's launcher, run locally: same records and merged dataset."""
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    res = hydra_run(["-m", "hydra/launcher=submitit_local", "detector=fast",
+                     "descriptor=brief,orb", "dataset.last=2", "sweep_name=sub"], tmp_path)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    runs = pd.read_parquet(tmp_path / "sweeps" / "sub" / store.RUNS_FILE)
+    assert sorted(runs["descriptor"]) == ["brief", "orb"] and (runs["status"] == "ok").all()

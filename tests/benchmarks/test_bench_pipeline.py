@@ -1,0 +1,49 @@
+"""Lidar association of a full scan (budget: well under 10 ms) and the pure-Python share.
+
+The pure-Python share of a frame is everything the pipeline does besides the OpenCV calls:
+with every expensive stage in a warm cache, one frame pair costs the cache loads, the lidar
+projection/assignment and FP.1–FP.4 for every matched box. Run with
+``pytest tests/benchmarks --benchmark-only``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from ttc.cache import StageCache
+from ttc.descriptors import DESCRIPTORS
+from ttc.frames import load_calibration, load_frame
+from ttc.keypoints import DETECTORS
+from ttc.lidar import LaneCropParams, associate_lidar
+from ttc.objects import ObjectDetectorParams, detect_objects
+from ttc.pipeline import FrameRange, Settings, run_setting
+
+
+@pytest.fixture(scope="module")
+def scan_and_boxes(kitti_dir: Path):
+    frame = load_frame(kitti_dir, 0)
+    detections = detect_objects(frame.image, ObjectDetectorParams())
+    calib = load_calibration(kitti_dir)
+    return frame.scan.points, calib.velo_to_image, detections.roi
+
+
+def test_bench_lidar_association_full_scan(benchmark, scan_and_boxes) -> None:
+    points, velo_to_image, rois = scan_and_boxes
+    assert len(points) > 110_000 and len(rois) >= 6
+    result = benchmark(associate_lidar, points, velo_to_image, rois, LaneCropParams())
+    assert result.counts(len(rois)).max() > 100
+    assert benchmark.stats["median"] < 10e-3
+
+
+def test_bench_python_share_per_frame_pair(benchmark, kitti_dir: Path, tmp_path_factory) -> None:
+    """18 frame pairs with every OpenCV stage cached; reported per run of 18 pairs."""
+    settings = Settings(detector=DETECTORS["fast"](), descriptor=DESCRIPTORS["brief"]())
+    frames = FrameRange(kitti_dir, 0, 18)
+    cache = StageCache(tmp_path_factory.mktemp("warm-cache"))
+    run_setting(settings, frames, cache)  # fill
+    rows = benchmark(run_setting, settings, frames, cache)
+    assert rows.filter(like="cached_").to_numpy().all()
+    benchmark.extra_info["pairs"] = 18
+    benchmark.extra_info["ms_per_pair_median"] = 1e3 * benchmark.stats["median"] / 18
