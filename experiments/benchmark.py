@@ -78,9 +78,9 @@ def timed_sweep(args: list[str], results: Path, cache: Path) -> tuple[float, pd.
     return wall, pd.read_parquet(results / name / store.RUNS_FILE)
 
 
-def _ms(fn) -> tuple[Any, float]:
+def _ms(fn, *args) -> tuple[Any, float]:
     start = time.perf_counter()
-    out = fn()
+    out = fn(*args)
     return out, 1e3 * (time.perf_counter() - start)
 
 
@@ -93,14 +93,14 @@ def compute_floor(sequence_dir: Path, grid: dict[str, Any]) -> dict[str, float]:
     net = load_detector(objects)
     totals = {"objects": 0.0, "keypoints": 0.0, "descriptors": 0.0, "matching_unique": 0.0}
     for frame in frames:
-        totals["objects"] += _ms(lambda f=frame: detect_objects(f.image, objects, net))[1]
+        totals["objects"] += _ms(detect_objects, frame.image, objects, net)[1]
     pairs = [
         (d, e) for d, e in valid_pairs() if d in grid["detectors"] and e in grid["descriptors"]
     ]
     for det in grid["detectors"]:
         keypoints = []
         for gray in grays:
-            kps, ms = _ms(lambda g=gray: detect_keypoints(g, DETECTORS[det]()))
+            kps, ms = _ms(detect_keypoints, gray, DETECTORS[det]())
             keypoints.append(kps)
             totals["keypoints"] += ms
         for d, desc in pairs:
@@ -116,8 +116,9 @@ def compute_floor(sequence_dir: Path, grid: dict[str, Any]) -> dict[str, float]:
             for matcher in ("bf", "flann"):
                 params = MatcherParams(name=matcher)
                 for a, b in pairwise(described):
-                    fn = lambda a=a, b=b: knn_candidates(a, b, is_binary(desc), params)  # noqa: E731
-                    totals["matching_unique"] += _ms(fn)[1]
+                    totals["matching_unique"] += _ms(knn_candidates, a, b, is_binary(desc), params)[
+                        1
+                    ]
     totals["matching_per_setting"] = 2 * totals["matching_unique"]  # nn and knn settings
     totals["n_valid_pairs"] = len(pairs)
     return totals
