@@ -108,9 +108,7 @@ def compute_floor(sequence_dir: Path, grid: dict[str, Any]) -> dict[str, float]:
                 continue
             described = []
             for gray, kps in zip(grays, keypoints, strict=True):
-                out, ms = _ms(
-                    lambda g=gray, k=kps: describe_keypoints(g, k, det, DESCRIPTORS[desc]())
-                )
+                out, ms = _ms(describe_keypoints, gray, kps, det, DESCRIPTORS[desc]())
                 described.append(out[1])
                 totals["descriptors"] += ms
             for matcher in ("bf", "flann"):
