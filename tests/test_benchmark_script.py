@@ -1,0 +1,33 @@
+"""The sweep benchmark script on its reduced grid: it runs and writes a complete JSON report."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import PROJECT_ROOT
+
+pytestmark = pytest.mark.slow
+
+
+def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    res = subprocess.run(
+        [sys.executable, "-m", "experiments.benchmark", "--reduced", "--out", str(out),
+         "--workdir", str(tmp_path / "work")],
+        cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=900,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    report = json.loads(out.read_text())
+    for key in ("cold_s", "floor_s", "floor_unique_s", "cold_over_floor", "nocache_s",
+                "nocache_over_cold", "warm_filter_s", "peak_rss_mb", "git_commit", "versions"):  # fmt: skip
+        assert key in report, key
+    assert report["settings"] == 16 and report["status"] == {"ok": 16}
+    stages = report["floor_ms_by_stage"]
+    assert all(stages[s] > 0 for s in ("objects", "keypoints", "descriptors", "matching_unique"))
+    assert report["nocache_s"] > report["warm_filter_s"]  # the cache saves work
+    print(json.dumps({k: v for k, v in report.items() if isinstance(v, float)}, indent=1))
