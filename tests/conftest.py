@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -28,3 +29,18 @@ def data_dir() -> Path:
 def kitti_dir(data_dir: Path) -> Path:
     """Folder of the 2011_09_26 sequence (image_02/, velodyne_points/, calib_*.txt)."""
     return data_dir / "kitti" / "2011_09_26"
+
+
+def copy_frames(kitti_dir: Path, target: Path, indices: range | list[int]) -> Path:
+    """Copy frames (image + scan) and both calibration files to ``target`` (to be damaged)."""
+    from ttc.frames import CAM_TO_CAM, VELO_TO_CAM, frame_files
+
+    for index in indices:
+        files = frame_files(kitti_dir, index)
+        for src in (files.image, files.scan):
+            dst = target / src.relative_to(kitti_dir)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(src, dst)
+    for name in (CAM_TO_CAM, VELO_TO_CAM):
+        shutil.copy(kitti_dir / name, target / name)
+    return target

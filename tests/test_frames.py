@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.conftest import copy_frames
 from ttc.frames import (
     FrameDataError,
     frame_files,
@@ -63,15 +63,7 @@ def test_frame_range_and_interval() -> None:
 @pytest.fixture
 def broken_dir(kitti_dir: Path, tmp_path: Path) -> Path:
     """A copy of frames 0–1 and the calibration, to be damaged by each test."""
-    for index in (0, 1):
-        files = frame_files(kitti_dir, index)
-        for src in (files.image, files.scan):
-            dst = tmp_path / src.relative_to(kitti_dir)
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy(src, dst)
-    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
-        shutil.copy(kitti_dir / name, tmp_path / name)
-    return tmp_path
+    return copy_frames(kitti_dir, tmp_path, (0, 1))
 
 
 def test_missing_image_names_file(broken_dir: Path) -> None:

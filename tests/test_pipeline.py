@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +9,7 @@ import pandas as pd
 import pytest
 
 from experiments.schema import FRAME_COLUMNS, schema_problems
+from tests.conftest import copy_frames
 from ttc import reasons
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS, InvalidCombinationError
@@ -99,14 +99,7 @@ def test_invalid_pair_raises_before_work(kitti_dir: Path, tmp_path: Path) -> Non
 
 def test_broken_frame_is_a_row_not_a_crash(kitti_dir: Path, tmp_path: Path) -> None:
     """A damaged scan in the middle of the range gives error rows; other pairs still compute."""
-    for index in range(4):
-        files = frame_files(kitti_dir, index)
-        for src in (files.image, files.scan):
-            dst = tmp_path / src.relative_to(kitti_dir)
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy(src, dst)
-    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
-        shutil.copy(kitti_dir / name, tmp_path / name)
+    copy_frames(kitti_dir, tmp_path, range(4))
     scan = frame_files(tmp_path, 2).scan
     scan.write_bytes(scan.read_bytes()[:-3])
     rows = run_setting(settings(), FrameRange(tmp_path, 0, 3), StageCache(None))
