@@ -431,22 +431,42 @@ def _pair_rows(
     if detail is not None:
         detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
                       lead_box=lead_box)  # fmt: skip
+    pair = _PairData(s, frames.dt, prev, curr, obj, lane, owners, xy_prev, xy_curr, selected)
     rows = []
     for prev_box, curr_box in box_pairs:
         row = dict(base)
         row.update(
-            _box_row(s, frames.dt, prev_box, curr_box, lead_box, obj, lane, owners, prev, curr,
-                     xy_prev, xy_curr, selected, detail if curr_box == lead_box else None)
-        )  # fmt: skip
+            _box_row(pair, prev_box, curr_box, lead_box, detail if curr_box == lead_box else None)
+        )
         row["box_shared_matches"] = shared.get(curr_box, 0) if prev_box >= 0 else 0
         row["error"] = ""
         rows.append(row)
     return rows
 
 
-def _box_row(s, dt, prev_box, curr_box, lead_box, obj, lane, owners, prev, curr,
-             xy_prev, xy_curr, selected, detail=None) -> dict[str, Any]:  # fmt: skip
+@dataclass(frozen=True)
+class _PairData:
+    """What FP.2–FP.4 need of one frame pair (built once per pair, shared by its boxes)."""
+
+    s: Settings
+    dt: float
+    prev: int
+    curr: int
+    obj: dict[int, dict[str, np.ndarray]]
+    lane: dict[int, dict[str, np.ndarray]]
+    owners: dict[int, np.ndarray]
+    xy_prev: np.ndarray
+    xy_curr: np.ndarray
+    selected: Any
+
+
+def _box_row(
+    pair: _PairData, prev_box: int, curr_box: int, lead_box: int, detail: dict | None = None
+) -> dict[str, Any]:
     """FP.2–FP.4 for one matched box pair (prev_box = −1: the lead box found no match)."""
+    s, dt, prev, curr = pair.s, pair.dt, pair.prev, pair.curr
+    obj, lane, owners, selected = pair.obj, pair.lane, pair.owners, pair.selected
+    xy_prev, xy_curr = pair.xy_prev, pair.xy_curr
     row: dict[str, Any] = {
         "prev_box": prev_box,
         "curr_box": curr_box,
