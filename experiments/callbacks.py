@@ -87,4 +87,10 @@ class SweepCallback(Callback):
         if _PROGRESS:
             _PROGRESS.pop("stop").set()
             _PROGRESS.pop("thread").join(timeout=10)
-        summarise_sweep(Path(config.hydra.sweep.dir))
+        from experiments.config import data_root  # noqa: PLC0415
+
+        summarise_sweep(
+            Path(config.hydra.sweep.dir),
+            data_dir=data_root(config),
+            cache_dir=Path(str(config.cache.dir)),
+        )

@@ -15,6 +15,7 @@ import pandas as pd
 
 from experiments import store
 from experiments.callbacks import PROGRESS_DIR
+from ttc import metrics
 
 SETTING_COLUMNS = ["detector", "descriptor", "matcher", "selector", "box_matching",
                    "lidar_ttc", "keypoint_filter", "camera_ttc"]  # fmt: skip
@@ -35,8 +36,41 @@ def interim_scores(frames: pd.DataFrame) -> pd.DataFrame:
     return out.sort_values(["median_abs_diff_s", "run_id"], ignore_index=True)
 
 
-def summarise_sweep(sweep_dir: Path, top: int = 5) -> pd.DataFrame:
-    """Collect the sweep, print where the dataset is, the run counts and the best settings."""
+RANKED_COLUMNS = ["rank", "run_id", *SETTING_COLUMNS, "camera_outlier_rate", "camera_medae_rel",
+                  "lidar_outlier_rate", "lidar_medae_rel", "n_frames", "ms_per_frame"]  # fmt: skip
+
+
+def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
+    """Runs ranked on the camera TTC by :data:`ttc.metrics.RANKING_RULE` against ``reference``
+    (rates and relative errors are fractions, time in ms)."""
+    ranked = metrics.rank_runs(metrics.run_metrics(frames, reference), "camera")
+    return ranked[[c for c in RANKED_COLUMNS if c in ranked]]
+
+
+def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None):
+    """The reference TTC of the sweep's recording, or None (with the reason printed) when it
+    cannot be built, e.g. the data root is gone."""
+    from experiments import report  # noqa: PLC0415 (heavy: plotting; only when ranking)
+
+    ok = runs[runs["status"] == "ok"]
+    try:
+        ctx = report.make_context(data_dir, cache_dir)
+        return report.reference_for(report.SweepData([], pd.DataFrame(), ok), ctx)
+    except (OSError, ValueError) as exc:
+        print(f"(no reference TTC: {exc}; ranking by the interim score instead)")
+        return None
+
+
+def summarise_sweep(
+    sweep_dir: Path,
+    top: int = 5,
+    data_dir: Path | None = None,
+    cache_dir: Path | None = None,
+) -> pd.DataFrame:
+    """Collect the sweep, print where the dataset is, the run counts and the best settings:
+    ranked against the reference TTC (:mod:`ttc.metrics`), or by the interim camera-vs-lidar
+    score when no reference can be built. ``data_dir`` / ``cache_dir``: None for the
+    configured defaults."""
     frames, runs = store.collect(sweep_dir)
     counts = runs["status"].value_counts() if not runs.empty else pd.Series(dtype=int)
     print(f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({len(frames)} rows)")
@@ -56,10 +90,19 @@ def summarise_sweep(sweep_dir: Path, top: int = 5) -> pd.DataFrame:
         print(f"  failed {run['run_id']}: {run['message']}")
     if frames.empty:
         return pd.DataFrame()
-    scores = interim_scores(frames)
-    with pd.option_context("display.width", 160, "display.max_columns", 20):
-        print(f"\nbest {top} settings by median |TTC camera - TTC lidar| (interim score):")
-        print(scores.head(top).to_string(index=False, float_format="%.2f"))
+    reference = sweep_reference(runs, data_dir, cache_dir)
+    if reference is None:
+        scores = interim_scores(frames)
+        title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
+    else:
+        scores = ranked_runs(frames, reference)
+        title = "on the camera TTC against the reference (ttc.metrics.RANKING_RULE)"
+    with pd.option_context("display.width", 200, "display.max_columns", 20):
+        print(f"\nbest {top} settings {title}:")
+        print(scores.head(top).to_string(index=False, float_format="%.3g"))
+    name = sweep_dir.name
+    print(f"\nreports (FP.5, FP.6, ranking with bootstrap intervals):\n"
+          f"  python -m experiments.report {sweep_dir} --out results/{name}")  # fmt: skip
     return scores
 
 

@@ -174,6 +174,22 @@ def test_rank_follows_the_rule():
     assert "outlier rate" in RANKING_RULE and "median" in RANKING_RULE
 
 
+def test_rank_breaks_ties_by_computing_time_not_cache_order():
+    # identical TTC series: r1 filled the cache (slow as measured), r2 loaded from it
+    metrics = pd.DataFrame(
+        {
+            "run_id": ["r1", "r2", "r3"],
+            "camera_outlier_rate": [0.1, 0.1, 0.1],
+            "camera_medae_rel": [0.2, 0.2, 0.2],
+            "ms_per_frame": [150.0, 3.0, 2.0],
+            "ms_compute_per_frame": [150.2, 150.0, NAN],
+        }
+    )
+    ranked = rank_runs(metrics)
+    # r3's computing time is unknown: its own 2 ms counts
+    assert ranked["run_id"].tolist() == ["r3", "r2", "r1"]
+
+
 def test_hand_table_ranking(metrics):
     ranked = rank_runs(metrics.reset_index())
     assert ranked["run_id"].tolist() == ["A", "B", "C"]  # B and C tie on outliers; B's error lower
