@@ -78,6 +78,40 @@ def timed_sweep(args: list[str], results: Path, cache: Path) -> tuple[float, pd.
     return wall, pd.read_parquet(results / name / store.RUNS_FILE)
 
 
+def sweep_breakdown(runs: pd.DataFrame, cores: int) -> dict[str, float]:
+    """Where a sweep's wall time went (s): ``jobs_s`` the settings' own work (the run
+    records' ``wall_s``, summed, divided by the cores), ``span_s`` first job start to last job
+    end; the rest of the span is per-job launcher work (Hydra composes each job's config in the
+    worker), the rest of the wall time start-up and the final merge + summary."""
+    start, end = pd.to_datetime(runs["start"]), pd.to_datetime(runs["end"])
+    return {
+        "jobs_s": float(runs["wall_s"].sum()) / cores,
+        "span_s": (end.max() - start.min()).total_seconds(),
+        "jobs": len(runs),
+    }
+
+
+def hydra_compose_seconds(args: list[str], repeats: int = 5) -> float:
+    """Median seconds Hydra takes to compose one job's config of the sweep (what the joblib
+    launcher does in the worker before every job)."""
+    from hydra import compose, initialize_config_dir  # noqa: PLC0415
+    from hydra.core.global_hydra import GlobalHydra  # noqa: PLC0415
+
+    from experiments.config import register_configs  # noqa: PLC0415
+
+    register_configs()
+    job = ["detector=orb", "descriptor=brisk", "matcher=flann", "selector=nn"]
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        master = compose(config_name="config", overrides=args[:1], return_hydra_config=True)
+        loader = GlobalHydra.instance().config_loader()
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            loader.load_sweep_config(master, job)
+            times.append(time.perf_counter() - start)
+    return float(sorted(times)[len(times) // 2])
+
+
 def _ms(fn, *args) -> tuple[Any, float]:
     start = time.perf_counter()
     out = fn(*args)
@@ -137,7 +171,10 @@ def run_benchmark(
     report["peak_rss_mb"] = float(runs["peak_rss_mb"].max())
 
     warm_args = [*sweep_args(grid, "warm_filter"), "keypoint_filter=zscore"]
-    report["warm_filter_s"], _ = timed_sweep(warm_args, results, cache)
+    report["warm_filter_s"], warm_runs = timed_sweep(warm_args, results, cache)
+    report["warm_filter_breakdown"] = sweep_breakdown(warm_runs, cores)
+    report["cold_breakdown"] = sweep_breakdown(runs, cores)
+    report["hydra_compose_s_per_job"] = hydra_compose_seconds(sweep_args(grid, "compose"))
 
     floor = compute_floor(sequence_dir, grid)
     strict_ms = floor["objects"] + floor["keypoints"] + floor["descriptors"]
@@ -191,6 +228,11 @@ def main(argv: list[str] | None = None) -> None:
         if key in report:
             value = report[key]
             print(f"{key:>24}: {value:.2f}" if isinstance(value, float) else f"{key:>24}: {value}")
+    for name in ("cold", "warm_filter"):
+        b = report[f"{name}_breakdown"]
+        print(f"{name + ' breakdown':>24}: jobs' own work {b['jobs_s']:.1f} s per core, "
+              f"first job start to last end {b['span_s']:.1f} s ({b['jobs']} jobs)")  # fmt: skip
+    print(f"{'hydra compose per job':>24}: {report['hydra_compose_s_per_job']:.3f} s")
     print(f"{'meets targets':>24}: {report['meets']}")
     print(f"report: {out}")
 

@@ -116,7 +116,8 @@ LIDAR_PX = 4.0
 BACKGROUND_SHARE = 0.2
 
 # ---- output bounds -------------------------------------------------------------------------
-MAX_LIDAR_PICTURES = 10
+#: One top view per flagged frame, up to this many (the most flagged estimators first).
+MAX_LIDAR_PICTURES = 50
 MAX_CAMERA_PICTURES = 10
 #: Way-off camera cases whose intermediate arrays are examined (≈ 30 ms each).
 MAX_EXAMINED = 60
@@ -125,6 +126,8 @@ PER_PAIR = 2
 MAX_PICTURE_WIDTH = 640
 #: Largest PNG (bytes): pictures are downscaled until they fit.
 MAX_PICTURE_BYTES = 120_000
+#: Largest FP.5 top view (bytes): there is one per flagged frame.
+LIDAR_PICTURE_BYTES = 60_000
 #: Depth (m) shown by an FP.5 top view, from just in front of the nearest point.
 TOP_VIEW_SPAN_M = 1.5
 FIGURE_DPI = 90
@@ -808,7 +811,9 @@ def lidar_picture(
     for f, points in clouds.items():
         marks = vis.estimator_marks(points, settings.lidar_ttc) if len(points) else {}
         marks["reference rear"] = float(ref.get(f, np.nan))
-        view = vis.top_view([(f"frame {f} box", points)], marks, world, (400, 520), grid=0.5)
+        view = vis.top_view(
+            [(f"frame {f} box", points)], marks, world, (400, 520), grid=0.5, lateral_grid=1.0
+        )
         panels.append(np.vstack([text_band(_panel_titles(rows, f, detail.curr), 400), view]))
     seam = np.full((panels[0].shape[0], 4, 3), 255, np.uint8)
     return np.hstack([panels[0], seam, panels[1]])
@@ -894,7 +899,7 @@ def fp5_report(
         for r in lidar_picture_frames(t).itertuples():
             path = out / "fp5_pictures" / f"{r.dataset}_frame_{r.frame:04d}.png"
             image = lidar_picture(t, data.runs, ctx, r.dataset, r.frame, reference)
-            drawn.append(vis.save_png(within_budget(image), path))
+            drawn.append(vis.save_png(within_budget(image, LIDAR_PICTURE_BYTES), path))
     (out / "fp5_lidar.md").write_text(fp5_markdown(data, t, reference, drawn, out))
     return t
 
@@ -1321,7 +1326,7 @@ def fp6_markdown(data, t, ranking, pictures, out: Path) -> str:
     """The FP.6 markdown: ranking, best settings, way-off frames with reasons, pictures."""
     show = ["rank", "rank_lo", "rank_hi", "setting", "camera_outlier_rate", "camera_medae_rel",
             "camera_meanae_rel", "camera_jitter_s", "camera_invalid", "way_off_frames",
-            "ms_per_frame"]  # fmt: skip
+            "ms_compute_per_frame", "ms_per_frame"]  # fmt: skip
     tied = ranking[ranking["rank_lo"] == 1]
     way = t[t["way_off"]]
     codes = way["reasons"].str.split(";").explode().value_counts().rename_axis("reason")

@@ -30,4 +30,7 @@ def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
     stages = report["floor_ms_by_stage"]
     assert all(stages[s] > 0 for s in ("objects", "keypoints", "descriptors", "matching_unique"))
     assert report["nocache_s"] > report["warm_filter_s"]  # the cache saves work
+    warm = report["warm_filter_breakdown"]
+    assert 0 < warm["jobs_s"] <= warm["span_s"] <= report["warm_filter_s"] and warm["jobs"] == 16
+    assert 0 < report["hydra_compose_s_per_job"] < 5
     print(json.dumps({k: v for k, v in report.items() if isinstance(v, float)}, indent=1))

@@ -191,8 +191,10 @@ def test_fp5_flags_real_frames_with_derived_reasons(fp5_report: Path) -> None:
 @pytest.mark.slow
 def test_fp5_pictures_are_bounded_and_linked(fp5_report: Path) -> None:
     pictures = sorted((fp5_report / "fp5_pictures").glob("*.png"))
-    assert 1 <= len(pictures) <= report.MAX_LIDAR_PICTURES
-    assert all(p.stat().st_size <= report.MAX_PICTURE_BYTES for p in pictures)
+    table = pd.read_csv(fp5_report / "fp5_lidar_ttc.csv")
+    flagged_frames = table.loc[table["flagged"], "frame"].nunique()
+    assert len(pictures) == min(flagged_frames, report.MAX_LIDAR_PICTURES) >= 1
+    assert all(p.stat().st_size <= report.LIDAR_PICTURE_BYTES for p in pictures)
     text = (fp5_report / "fp5_lidar.md").read_text()
     assert all(f"fp5_pictures/{p.name}" in text for p in pictures)
 
