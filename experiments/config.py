@@ -175,14 +175,17 @@ def frame_range_from_config(cfg: DictConfig) -> FrameRange:
 
 def setting_config(cfg: DictConfig) -> dict[str, Any]:
     """The part of the config that determines the numbers (no paths, no launcher)."""
-    container = OmegaConf.to_container(cfg, resolve=True)
-    setting = {axis: container[axis] for axis in AXES}
+    setting = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in (*AXES, "lidar")}
     setting["dataset"] = {k: v for k, v in setting["dataset"].items() if k != "root"}
-    setting["lidar"] = container["lidar"]
     return setting
+
+
+def setting_hash(setting: dict[str, Any]) -> str:
+    """The run id of a :func:`setting_config` (16 hex digits of its canonical JSON's SHA-256)."""
+    text = json.dumps(setting, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def run_id(cfg: DictConfig) -> str:
     """Hash of :func:`setting_config`: equal configs give equal ids, across machines."""
-    text = json.dumps(setting_config(cfg), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    return setting_hash(setting_config(cfg))

@@ -38,8 +38,8 @@ from experiments.config import (
     data_root,
     frame_range_from_config,
     register_configs,
-    run_id,
     setting_config,
+    setting_hash,
     settings_from_config,
 )
 from experiments.provenance import code_version, machine, package_versions
@@ -78,7 +78,8 @@ def check_data(cfg: DictConfig) -> None:
 
 def run_job(cfg: DictConfig, sweep_dir: Path) -> dict[str, Any]:
     """Compute one setting and store its rows and record; return the record."""
-    rid = run_id(cfg)
+    setting = setting_config(cfg)
+    rid = setting_hash(setting)
     if not cfg.force and store.is_complete(sweep_dir, rid):
         record = store.read_record(sweep_dir, rid) or {}
         return {**record, "resumed": True}
@@ -91,7 +92,7 @@ def run_job(cfg: DictConfig, sweep_dir: Path) -> dict[str, Any]:
         "first_frame": int(cfg.dataset.first),
         "last_frame": int(cfg.dataset.last),
         "step": int(cfg.dataset.step),
-        "config": json.dumps(setting_config(cfg), sort_keys=True),
+        "config": json.dumps(setting, sort_keys=True),
         **code_version(),
         **{f"version_{k}": v for k, v in package_versions().items()},
         **machine(),

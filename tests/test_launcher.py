@@ -1,0 +1,70 @@
+"""The launcher's job composer gives every job exactly the config Hydra composes for it."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import OmegaConf
+
+from experiments.config import register_configs
+from hydra_plugins.ttc_launcher import JobComposer
+from hydra_plugins.ttc_sweeper import representative_jobs
+from tests.conftest import PROJECT_ROOT
+
+
+@pytest.fixture(scope="module")
+def loader_and_master():
+    register_configs()
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        master = compose(
+            config_name="config",
+            overrides=["+experiment=fp6_grid", "keypoint_filter=zscore"],
+            return_hydra_config=True,
+        )
+        yield GlobalHydra.instance().config_loader(), master
+
+
+def comparable(cfg):
+    """The whole config, interpolations unresolved, and the job's part resolved."""
+    job = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
+    return OmegaConf.to_container(cfg, resolve=False), OmegaConf.to_container(job, resolve=True)
+
+
+def test_every_job_gets_hydras_config(loader_and_master) -> None:
+    loader, master = loader_and_master
+    jobs = [
+        ["+experiment=fp6_grid", "keypoint_filter=zscore", f"detector={d}", f"descriptor={e}",
+         f"matcher={m}", f"dataset={ds}", f"lidar.shrink={s}"]
+        for d, e, m, ds, s in itertools.product(("fast", "sift"), ("brief", "akaze"),
+                                                ("bf", "flann"), ("kitti_0_18", "kitti_0_77"),
+                                                (0.1, 0.2))
+    ]  # fmt: skip
+    composer = JobComposer(loader, master)
+    for job in jobs:
+        assert comparable(composer.compose(job)) == comparable(
+            loader.load_sweep_config(master, job)
+        ), job
+    # the template plus one variant per further value of each swept key; the rest are copies
+    assert composer.full_compositions == 1 + 5
+
+
+def test_a_value_it_cannot_prove_local_goes_through_hydra(loader_and_master) -> None:
+    loader, master = loader_and_master
+    composer = JobComposer(loader, master)
+    jobs = [["+experiment=fp6_grid", f"+extra={v}"] for v in (1, 2, 3)]  # additions, not changes
+    for job in jobs:
+        assert comparable(composer.compose(job)) == comparable(
+            loader.load_sweep_config(master, job)
+        )
+    assert composer.full_compositions == 3
+
+
+def test_validation_jobs_cover_every_value_once_per_key() -> None:
+    batch = [list(j) for j in itertools.product(("d=a", "d=b", "d=c"), ("e=1", "e=2"), ("m=x",))]
+    jobs = representative_jobs(batch)
+    assert len(jobs) == 3
+    for position in range(3):
+        assert {job[position] for job in jobs} == {job[position] for job in batch}
