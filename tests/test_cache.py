@@ -38,20 +38,36 @@ def test_keys_depend_on_every_part() -> None:
 
 
 def test_corrupt_entry_is_recomputed(tmp_path: Path) -> None:
-    cache = StageCache(tmp_path)
+    cache = StageCache(tmp_path, memory_mb=0)  # a new process: nothing kept in memory
     calls: list[int] = []
     key = cache_key("stage", "corrupt")
     cache.get(_task(key, calls))
     path = cache.path("stage", key)
     path.write_bytes(path.read_bytes()[:40])  # truncated zip
-    again = StageCache(tmp_path).get(_task(key, calls))
+    again = StageCache(tmp_path, memory_mb=0).get(_task(key, calls))
     assert not again.cached and len(calls) == 2
     np.testing.assert_array_equal(again.arrays["a"], np.arange(5))
-    assert StageCache(tmp_path).get(_task(key, calls)).cached
+    assert StageCache(tmp_path, memory_mb=0).get(_task(key, calls)).cached
+
+
+def test_recent_entries_are_served_from_memory_read_only_within_budget(tmp_path: Path) -> None:
+    calls: list[int] = []
+    key = cache_key("stage", "memory")
+    first = StageCache(tmp_path).get(_task(key, calls))
+    StageCache(tmp_path).path("stage", key).unlink()  # gone from disk, kept in memory
+    again = StageCache(tmp_path).get(_task(key, calls))
+    assert again.cached and len(calls) == 1 and again.arrays["a"] is first.arrays["a"]
+    assert not again.arrays["a"].flags.writeable
+    # an entry larger than the budget is not kept
+    small = StageCache(tmp_path, memory_mb=1e-5)  # 10 bytes
+    big = cache_key("stage", "big")
+    small.get(_task(big, calls))
+    small.path("stage", big).unlink()
+    assert small.load("stage", big) is None
 
 
 def test_entry_with_foreign_key_is_rejected(tmp_path: Path) -> None:
-    cache = StageCache(tmp_path)
+    cache = StageCache(tmp_path, memory_mb=0)
     calls: list[int] = []
     k1, k2 = cache_key("stage", 1), cache_key("stage", 2)
     cache.get(_task(k1, calls))

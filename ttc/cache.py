@@ -11,6 +11,11 @@ parameters). Safety under concurrent workers:
   ``flock`` on ``<entry>.lock``. If another worker holds it, the caller can do other work first
   (:meth:`StageCache.resolve` defers such entries) and only then wait, so two workers that
   start on the same detector split its frames instead of computing each of them twice.
+
+Each process also keeps the entries it loaded or computed most recently in memory (up to
+``memory_mb``, least recently used out first), as read-only arrays: a worker that runs many
+settings in a row loads the frames' objects, lane points and shared keypoints once. An entry's
+key names the content of its input files and parameters, so a kept entry cannot go stale.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import os
 import tempfile
 import time
 import zipfile
+from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +42,42 @@ except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process lo
 
 Arrays = dict[str, np.ndarray]
 _KEY_FIELD = "__cache_key__"
+#: Default memory budget of a process's recently used entries (MB; 0 disables).
+MEMORY_MB = 256
+
+
+class _Recent:
+    """Least-recently-used entries of this process, bounded by their bytes."""
+
+    def __init__(self) -> None:
+        self.entries: OrderedDict[tuple[str, str], Arrays] = OrderedDict()
+        self.nbytes = 0
+
+    def get(self, name: tuple[str, str]) -> Arrays | None:
+        arrays = self.entries.get(name)
+        if arrays is not None:
+            self.entries.move_to_end(name)
+        return arrays
+
+    def put(self, name: tuple[str, str], arrays: Arrays, budget: int) -> Arrays:
+        """Keep ``arrays`` (made read-only) and return them; evict beyond ``budget`` bytes."""
+        arrays = {name: np.asarray(value) for name, value in arrays.items()}  # as loaded
+        for array in arrays.values():
+            array.flags.writeable = False
+        size = sum(a.nbytes for a in arrays.values())
+        if size > budget:
+            return arrays
+        if name in self.entries:
+            self.nbytes -= sum(a.nbytes for a in self.entries.pop(name).values())
+        self.entries[name] = arrays
+        self.nbytes += size
+        while self.nbytes > budget:
+            _, old = self.entries.popitem(last=False)
+            self.nbytes -= sum(a.nbytes for a in old.values())
+        return arrays
+
+
+_RECENT = _Recent()
 
 
 def cache_key(stage: str, *parts: Any) -> str:
@@ -66,10 +108,16 @@ class Task:
 class StageCache:
     """Cache rooted at ``directory``; ``directory=None`` or ``enabled=False`` computes always."""
 
-    def __init__(self, directory: Path | str | None, enabled: bool = True) -> None:
+    def __init__(
+        self, directory: Path | str | None, enabled: bool = True, memory_mb: float = MEMORY_MB
+    ) -> None:
         self.directory = Path(directory) if directory is not None else None
         self.enabled = enabled and directory is not None
+        self.memory_bytes = int(memory_mb * 2**20) if self.enabled else 0
         self.corrupt_entries = 0
+
+    def _name(self, stage: str, key: str) -> tuple[str, str]:
+        return (str(self.directory), f"{stage}/{key}")
 
     # -- paths -------------------------------------------------------------------------------
     def path(self, stage: str, key: str) -> Path:
@@ -81,6 +129,8 @@ class StageCache:
         """The stored arrays, or None when absent; a corrupt entry is deleted and None returned."""
         if not self.enabled:
             return None
+        if self.memory_bytes and (kept := _RECENT.get(self._name(stage, key))) is not None:
+            return kept
         path = self.path(stage, key)
         try:
             with np.load(path, allow_pickle=False) as data:
@@ -93,7 +143,12 @@ class StageCache:
         if str(arrays.pop(_KEY_FIELD, "")) != key:
             self._discard(path)
             return None
-        return arrays
+        return self._remember(stage, key, arrays)
+
+    def _remember(self, stage: str, key: str, arrays: Arrays) -> Arrays:
+        if not self.memory_bytes:
+            return arrays
+        return _RECENT.put(self._name(stage, key), arrays, self.memory_bytes)
 
     def store(self, stage: str, key: str, arrays: Arrays) -> None:
         """Write an entry atomically (temporary file + rename)."""
@@ -152,6 +207,7 @@ class StageCache:
                     start = time.perf_counter()
                     arrays = task.compute()
                     self.store(task.stage, task.key, arrays)
+                    arrays = self._remember(task.stage, task.key, arrays)
                     task.result = Lookup(arrays, False, 1e3 * (time.perf_counter() - start))
                     return task.result
         task.result = Lookup(arrays, True, 1e3 * (time.perf_counter() - start))
