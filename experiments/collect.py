@@ -15,6 +15,7 @@ import pandas as pd
 
 from experiments import store
 from experiments.callbacks import PROGRESS_DIR
+from experiments.reference_store import runs_reference
 from ttc import metrics
 
 SETTING_COLUMNS = ["detector", "descriptor", "matcher", "selector", "box_matching",
@@ -50,12 +51,8 @@ def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
 def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None):
     """The reference TTC of the sweep's recording, or None (with the reason printed) when it
     cannot be built, e.g. the data root is gone."""
-    from experiments import report  # noqa: PLC0415 (heavy: plotting; only when ranking)
-
-    ok = runs[runs["status"] == "ok"]
     try:
-        ctx = report.make_context(data_dir, cache_dir)
-        return report.reference_for(report.SweepData([], pd.DataFrame(), ok), ctx)
+        return runs_reference(runs[runs["status"] == "ok"], data_dir, cache_dir)
     except (OSError, ValueError) as exc:
         print(f"(no reference TTC: {exc}; ranking by the interim score instead)")
         return None

@@ -27,8 +27,6 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import functools
-import hashlib
-import inspect
 import json
 import shutil
 import time
@@ -49,18 +47,22 @@ from scipy.spatial import cKDTree
 
 from experiments import store
 from experiments.config import (
-    data_root,
     frame_range_from_config,
-    register_configs,
     settings_from_config,
 )
-from experiments.provenance import PROJECT_ROOT, code_version, machine, package_versions
+from experiments.provenance import code_version, machine, package_versions
+from experiments.reference_store import (  # noqa: F401  (re-exported for notebooks)
+    base_config,
+    default_cache_dir,
+    default_data_root,
+    sequence_of,
+    sequence_reference,
+)
 from ttc import metrics, reasons
 from ttc import reference as reference_module
 from ttc import visualize as vis
-from ttc.cache import StageCache, Task, cache_key
+from ttc.cache import StageCache
 from ttc.camera_ttc import distance_ratios
-from ttc.frames import LIDAR_DIR, file_identity, frame_files
 from ttc.keypoints import X, Y
 from ttc.lidar_ttc import LidarTTCParams
 from ttc.lidar_ttc import rear_distance as lidar_rear_distance
@@ -133,7 +135,6 @@ TOP_VIEW_SPAN_M = 1.5
 FIGURE_DPI = 90
 FLOAT_FORMAT = "%.6g"
 N_BOOT = 500
-REFERENCE_CACHE_VERSION = 1
 
 
 # =========================================================================== loading
@@ -199,26 +200,6 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
 # =========================================================================== environment
 
 
-@functools.cache
-def base_config() -> DictConfig:
-    """The project's composed default config (data root and cache dir, env vars applied)."""
-    from hydra import compose, initialize_config_dir
-
-    register_configs()
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config")
-
-
-def default_data_root() -> Path:
-    """``$TTC_DATA_DIR`` or the configured default data root."""
-    return data_root(base_config())
-
-
-def default_cache_dir() -> Path:
-    """``$TTC_CACHE_DIR`` or the configured default stage cache folder."""
-    return Path(str(base_config().cache.dir))
-
-
 def run_config(config_json: str, root: Path) -> DictConfig:
     """A run's stored setting config (runs.parquet ``config``) with the data root put back."""
     cfg = OmegaConf.create(json.loads(config_json))
@@ -260,35 +241,6 @@ def make_context(data_dir: Path | None = None, cache_dir: Path | None = None) ->
 
 
 # =========================================================================== reference
-
-
-def sequence_of(runs: pd.DataFrame) -> str:
-    """The one KITTI recording (``dataset.sequence``) of the runs."""
-    sequences = sorted({json.loads(c)["dataset"]["sequence"] for c in runs["config"]})
-    if len(sequences) != 1:
-        raise ValueError(f"the sweeps cover {len(sequences)} recordings {sequences}; report one")
-    return sequences[0]
-
-
-def _reference_key(sequence_dir: Path, last: int) -> str:
-    scans = [file_identity(frame_files(sequence_dir, i).scan) for i in range(last + 1)]
-    source = hashlib.sha256(inspect.getsource(reference_module).encode()).hexdigest()
-    return cache_key("reference", REFERENCE_CACHE_VERSION, source, scans)
-
-
-def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
-    """Reference TTC over every frame of the recording (:func:`reference_for_sequence`),
-    kept in the stage cache (key: the scans' identities and ``ttc/reference.py``'s source)."""
-    last = len(list((Path(sequence_dir) / LIDAR_DIR).glob("*.bin"))) - 1
-    if last < 1:
-        raise FileNotFoundError(f"no lidar scans under {Path(sequence_dir) / LIDAR_DIR}")
-
-    def compute() -> dict[str, np.ndarray]:
-        ref = reference_module.reference_for_sequence(sequence_dir, 0, last)
-        return {c: ref[c].to_numpy() for c in ref.columns}
-
-    arrays = cache.get(Task("reference", _reference_key(Path(sequence_dir), last), compute))
-    return pd.DataFrame(arrays.arrays)
 
 
 def reference_for(data: SweepData, ctx: Context) -> pd.DataFrame:
@@ -1457,6 +1409,8 @@ def build_report(
     data = load_sweeps(sweep_dirs)
     if data.runs.empty:
         raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
+    if not data.frames.empty:
+        data.frames = metrics.with_compute_times(data.frames)
     ctx = make_context(data_dir, cache_dir)
     out.mkdir(parents=True, exist_ok=True)
     lap("load")

@@ -14,6 +14,7 @@ from ttc.metrics import (
     compare_runs,
     rank_runs,
     run_metrics,
+    with_compute_times,
 )
 
 INF, NAN = np.inf, np.nan
@@ -136,6 +137,25 @@ def test_compute_time_unknown_when_no_run_computed_the_stage():
     m = run_metrics(table, REFERENCE).set_index("run_id")
     assert m["ms_compute_per_frame"].isna().all()
     np.testing.assert_allclose(m["ms_per_frame"], [15.0, 6.0, 29 / 5])
+
+
+def test_compute_time_of_a_stage_computed_on_another_frame_or_by_another_sweep():
+    table = hand_table()
+    # frame 1's objects were computed (10 ms) by A only: with A's frame-1 rows cached too,
+    # frame 1 falls back to the stage's median over the frames where it was computed
+    a = table["run_id"].eq("A")
+    on_1 = table.assign(cached_objects=table["cached_objects"] | (a & table["frame"].eq(1)))
+    known = run_metrics(on_1, REFERENCE).set_index("run_id")
+    assert known["ms_compute_per_frame"].notna().all()
+    # a subset of runs keeps the times looked up over the whole table
+    whole = with_compute_times(table)
+    subset = run_metrics(whole[~a], REFERENCE).set_index("run_id")
+    alone = run_metrics(table[~a], REFERENCE).set_index("run_id")
+    full = run_metrics(table, REFERENCE).set_index("run_id")
+    np.testing.assert_allclose(
+        subset["ms_compute_per_frame"], full.loc[["B", "C"], "ms_compute_per_frame"]
+    )
+    assert alone["ms_compute_per_frame"].isna().all()
 
 
 def test_false_alarm_rate_nan_without_a_no_collision_frame():
