@@ -36,6 +36,7 @@ def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
     os.close(fd)
     try:
         write(Path(tmp))
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; results are for everyone to read
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -46,6 +47,11 @@ def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
 def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
     """Write ``df`` to ``path`` as parquet, atomically."""
     _atomic_write(path, lambda tmp: df.to_parquet(tmp, index=False))
+
+
+def write_bytes_atomic(data: bytes, path: Path) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename."""
+    _atomic_write(Path(path), lambda tmp: tmp.write_bytes(data))
 
 
 def write_json_atomic(obj: Any, path: Path) -> None:
