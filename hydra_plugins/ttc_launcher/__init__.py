@@ -91,7 +91,9 @@ class JobComposer:
     def __init__(self, config_loader: Any, master: DictConfig) -> None:
         self.loader = config_loader
         self.master = master
+        self.parser = OverridesParser.create()
         self.template: list[str] | None = None
+        self.template_keys: list[str] = []
         self.base: DictConfig | None = None
         self.parts: dict[tuple[int, str], tuple[str, Any, str | None] | None] = {}
         self.full_compositions = 0
@@ -122,15 +124,15 @@ class JobComposer:
         overrides = list(overrides)
         if self.base is None:
             self.template, self.base = overrides, self.full(overrides)
-        parsed = OverridesParser.create().parse_overrides(overrides)
+            self.template_keys = [o.key_or_group for o in self.parser.parse_overrides(overrides)]
+        parsed = self.parser.parse_overrides(overrides)
         if len(overrides) != len(self.template):
             return self.full(overrides)
         cfg = copy.deepcopy(self.base)
         for position, (item, override) in enumerate(zip(overrides, parsed, strict=True)):
             if item == self.template[position]:
                 continue
-            template_key = OverridesParser.create().parse_override(self.template[position])
-            if template_key.key_or_group != override.key_or_group:
+            if self.template_keys[position] != override.key_or_group:
                 return self.full(overrides)
             part = self._part(position, override)
             if part is None:
