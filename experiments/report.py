@@ -52,7 +52,7 @@ from experiments.config import (
     frame_range_from_config,
     settings_from_config,
 )
-from experiments.provenance import code_version, machine, package_versions
+from experiments.provenance import PROJECT_ROOT, code_version, machine, package_versions
 from experiments.reference_store import (  # noqa: F401  (re-exported for notebooks)
     base_config,
     default_cache_dir,
@@ -237,6 +237,18 @@ class Context:
         return self.details[key]
 
 
+def open_sweep(sweep_dir: Path | str) -> tuple[SweepData, Context, pd.DataFrame]:
+    """A sweep folder (relative paths from the project root) as the notebooks use it: its
+    data (compute times looked up), the default context and its reference."""
+    sweep_dir = Path(sweep_dir)
+    sweep_dir = sweep_dir if sweep_dir.is_absolute() else PROJECT_ROOT / sweep_dir
+    data = load_sweeps([sweep_dir])
+    if not data.frames.empty:
+        data.frames = metrics.with_compute_times(data.frames)
+    ctx = make_context()
+    return data, ctx, reference_for(data, ctx)
+
+
 def make_context(data_dir: Path | None = None, cache_dir: Path | None = None) -> Context:
     """A :class:`Context` with the given or default data root and cache folder."""
     root = Path(data_dir) if data_dir else default_data_root()
@@ -399,6 +411,26 @@ def combine_reasons(parts: dict[str, pd.Series], index: pd.Index) -> pd.DataFram
     out["reasons"] = out["reasons"].str.rstrip(";")
     out["reason_text"] = out["reason_text"].str.strip()
     return out
+
+
+def with_reasons(
+    t: pd.DataFrame,
+    selected: str,
+    rules: Callable[[pd.DataFrame], dict[str, pd.Series]],
+    fallback_code: str,
+    fallback: Callable[[pd.DataFrame], pd.Series],
+) -> pd.DataFrame:
+    """``t`` with ``reasons`` / ``reason_text`` on the rows where ``selected`` is true: the
+    rules that fire, else ``fallback_code`` and its text; '' on the other rows."""
+    t = t.copy()
+    chosen = t[t[selected]]
+    found = combine_reasons(rules(chosen), chosen.index)
+    none = found["reasons"].eq("")
+    found.loc[none, "reasons"] = fallback_code
+    found.loc[none, "reason_text"] = fallback(chosen[none])
+    t["reasons"], t["reason_text"] = "", ""
+    t.loc[chosen.index, ["reasons", "reason_text"]] = found[["reasons", "reason_text"]]
+    return t
 
 
 def _code_texts(codes: pd.Series) -> pd.Series:
@@ -732,13 +764,7 @@ def lidar_reasons(t: pd.DataFrame, runs: pd.DataFrame, ctx: Context | None) -> p
     t = t.copy()
     if ctx is not None:
         t["other_object_text"] = other_object_texts(t, runs, ctx)
-    flagged = t[t["flagged"]]
-    found = combine_reasons(lidar_rules(flagged), flagged.index)
-    none = found["reasons"].eq("")
-    found.loc[none, "reasons"] = "range_noise"
-    found.loc[none, "reason_text"] = lidar_fallback(flagged[none])
-    t["reasons"], t["reason_text"] = "", ""
-    t.loc[flagged.index, ["reasons", "reason_text"]] = found[["reasons", "reason_text"]]
+    t = with_reasons(t, "flagged", lidar_rules, "range_noise", lidar_fallback)
     return t.drop(columns=["other_object_text"], errors="ignore")
 
 
@@ -1106,15 +1132,7 @@ def examine_worst(t: pd.DataFrame, runs, reference, ctx: Context, limit: int) ->
 
 def camera_reasons(t: pd.DataFrame) -> pd.DataFrame:
     """``t`` with ``reasons`` / ``reason_text`` of the way-off rows from the rows alone."""
-    t = t.copy()
-    way = t[t["way_off"]]
-    found = combine_reasons(camera_rules(way), way.index)
-    none = found["reasons"].eq("")
-    found.loc[none, "reasons"] = "scale_error"
-    found.loc[none, "reason_text"] = camera_fallback(way[none])
-    t["reasons"], t["reason_text"] = "", ""
-    t.loc[way.index, ["reasons", "reason_text"]] = found[["reasons", "reason_text"]]
-    return t
+    return with_reasons(t, "way_off", camera_rules, "scale_error", camera_fallback)
 
 
 def camera_ranking(frames: pd.DataFrame, t: pd.DataFrame, reference: pd.DataFrame):

@@ -28,18 +28,14 @@ import seaborn as sns
 from IPython.display import Markdown, display
 
 from experiments import report
-from experiments.provenance import PROJECT_ROOT
 from ttc.reference import REFERENCE_CAVEATS
 
 # %% tags=["parameters"]
 SWEEP_DIR = os.environ.get("TTC_SWEEP_DIR", "sweeps/fp5_lidar_kitti_0_18")
 
 # %%
-sweep_dir = Path(SWEEP_DIR) if Path(SWEEP_DIR).is_absolute() else PROJECT_ROOT / SWEEP_DIR
-data = report.load_sweeps([sweep_dir])
-ctx = report.make_context()
-reference = report.reference_for(data, ctx)
-display(Markdown(report.provenance_markdown(data, f"Sweep `{sweep_dir.name}`")))
+data, ctx, reference = report.open_sweep(SWEEP_DIR)
+display(Markdown(report.provenance_markdown(data, f"Sweep `{Path(SWEEP_DIR).name}`")))
 
 # %% [markdown]
 # ## Reference

@@ -27,7 +27,6 @@ import seaborn as sns
 from IPython.display import Markdown, display
 
 from experiments import report
-from experiments.provenance import PROJECT_ROOT
 from ttc import metrics
 
 # %% tags=["parameters"]
@@ -35,11 +34,8 @@ SWEEP_DIR = os.environ.get("TTC_SWEEP_DIR", "sweeps/fp6_grid_kitti_0_18")
 SENSOR = os.environ.get("TTC_SENSOR", "camera")  # camera or lidar
 
 # %%
-sweep_dir = Path(SWEEP_DIR) if Path(SWEEP_DIR).is_absolute() else PROJECT_ROOT / SWEEP_DIR
-data = report.load_sweeps([sweep_dir])
-ctx = report.make_context()
-reference = report.reference_for(data, ctx)
-display(Markdown(report.provenance_markdown(data, f"Sweep `{sweep_dir.name}`")))
+data, ctx, reference = report.open_sweep(SWEEP_DIR)
+display(Markdown(report.provenance_markdown(data, f"Sweep `{Path(SWEEP_DIR).name}`")))
 
 # %% [markdown]
 # ## The rule
