@@ -179,7 +179,9 @@ def sweep_overrides(sweep_dir: Path) -> list[str]:
 
 
 def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
-    """Concatenate sweeps; a run id present in several sweeps is taken from the first."""
+    """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
+    frames get ``ms_compute_per_frame`` looked up over all of them
+    (:func:`ttc.metrics.with_compute_times`)."""
     dirs = [Path(d) for d in dirs]
     frame_parts, run_parts, overrides = [], [], {}
     seen: set[str] = set()
@@ -198,6 +200,8 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         overrides[d.name] = sweep_overrides(d)
     frames = pd.concat(frame_parts, ignore_index=True) if frame_parts else pd.DataFrame()
     runs = pd.concat(run_parts, ignore_index=True) if run_parts else pd.DataFrame()
+    if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
+        frames = metrics.with_compute_times(frames)
     return SweepData(dirs, frames, runs, overrides, repeated)
 
 
@@ -239,12 +243,10 @@ class Context:
 
 def open_sweep(sweep_dir: Path | str) -> tuple[SweepData, Context, pd.DataFrame]:
     """A sweep folder (relative paths from the project root) as the notebooks use it: its
-    data (compute times looked up), the default context and its reference."""
+    data, the default context and its reference."""
     sweep_dir = Path(sweep_dir)
     sweep_dir = sweep_dir if sweep_dir.is_absolute() else PROJECT_ROOT / sweep_dir
     data = load_sweeps([sweep_dir])
-    if not data.frames.empty:
-        data.frames = metrics.with_compute_times(data.frames)
     ctx = make_context()
     return data, ctx, reference_for(data, ctx)
 
@@ -341,16 +343,12 @@ def fit_width(image: np.ndarray, width: int = MAX_PICTURE_WIDTH) -> np.ndarray:
     return cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
 
 
-def within_budget(image: np.ndarray, max_bytes: int = MAX_PICTURE_BYTES) -> np.ndarray:
-    """``image`` downscaled in 15 % steps until its PNG encoding fits ``max_bytes``."""
-    while len(cv2.imencode(".png", image)[1]) > max_bytes and image.shape[1] > 200:
-        image = cv2.resize(image, None, fx=0.85, fy=0.85, interpolation=cv2.INTER_AREA)
-    return image
-
-
-def save_picture(image: np.ndarray, path: Path) -> Path:
-    """Write a picture (at most :data:`MAX_PICTURE_WIDTH` wide, within the byte budget)."""
-    return vis.save_png(within_budget(fit_width(image)), path)
+def rgb_png(image: np.ndarray) -> bytes:
+    """A BGR image encoded as an RGB PNG (OpenCV's default compression)."""
+    ok, buffer = cv2.imencode(".png", image)
+    if not ok:
+        raise OSError("OpenCV could not encode the picture as PNG")
+    return buffer.tobytes()
 
 
 def palette_png(image: np.ndarray, colours: int = TOP_VIEW_COLOURS) -> bytes:
@@ -362,14 +360,32 @@ def palette_png(image: np.ndarray, colours: int = TOP_VIEW_COLOURS) -> bytes:
     return buffer.getvalue()
 
 
-def save_top_view(image: np.ndarray, path: Path, max_bytes: int = LIDAR_PICTURE_BYTES) -> Path:
-    """Write a drawing as a palette PNG (atomically), downscaled in 15 % steps until it fits
-    ``max_bytes``."""
-    data = palette_png(image)
+def shrink_to_fit(
+    image: np.ndarray, encode: Callable[[np.ndarray], bytes], max_bytes: int
+) -> tuple[np.ndarray, bytes]:
+    """``image`` downscaled in 15 % steps (not below 200 px wide) until ``encode`` of it fits
+    ``max_bytes``; the image and its encoding."""
+    data = encode(image)
     while len(data) > max_bytes and image.shape[1] > 200:
         image = cv2.resize(image, None, fx=0.85, fy=0.85, interpolation=cv2.INTER_AREA)
-        data = palette_png(image)
-    store.write_bytes_atomic(data, path)
+        data = encode(image)
+    return image, data
+
+
+def within_budget(image: np.ndarray, max_bytes: int = MAX_PICTURE_BYTES) -> np.ndarray:
+    """``image`` downscaled in 15 % steps until its PNG encoding fits ``max_bytes``."""
+    return shrink_to_fit(image, rgb_png, max_bytes)[0]
+
+
+def save_picture(image: np.ndarray, path: Path) -> Path:
+    """Write a picture (at most :data:`MAX_PICTURE_WIDTH` wide, within the byte budget)."""
+    store.write_bytes_atomic(shrink_to_fit(fit_width(image), rgb_png, MAX_PICTURE_BYTES)[1], path)
+    return path
+
+
+def save_top_view(image: np.ndarray, path: Path, max_bytes: int = LIDAR_PICTURE_BYTES) -> Path:
+    """Write a drawing as a palette PNG (atomically), downscaled until it fits ``max_bytes``."""
+    store.write_bytes_atomic(shrink_to_fit(image, palette_png, max_bytes)[1], path)
     return path
 
 
@@ -1451,8 +1467,6 @@ def build_report(
     data = load_sweeps(sweep_dirs)
     if data.runs.empty:
         raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
-    if not data.frames.empty:
-        data.frames = metrics.with_compute_times(data.frames)
     ctx = make_context(data_dir, cache_dir)
     out.mkdir(parents=True, exist_ok=True)
     lap("load")

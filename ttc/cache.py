@@ -46,6 +46,10 @@ _KEY_FIELD = "__cache_key__"
 MEMORY_MB = 256
 
 
+def _nbytes(arrays: Arrays) -> int:
+    return sum(a.nbytes for a in arrays.values())
+
+
 class _Recent:
     """Least-recently-used entries of this process, bounded by their bytes."""
 
@@ -61,19 +65,18 @@ class _Recent:
 
     def put(self, name: tuple[str, str], arrays: Arrays, budget: int) -> Arrays:
         """Keep ``arrays`` (made read-only) and return them; evict beyond ``budget`` bytes."""
-        arrays = {name: np.asarray(value) for name, value in arrays.items()}  # as loaded
+        arrays = {field: np.asarray(value) for field, value in arrays.items()}  # as loaded
         for array in arrays.values():
             array.flags.writeable = False
-        size = sum(a.nbytes for a in arrays.values())
+        size = _nbytes(arrays)
         if size > budget:
             return arrays
         if name in self.entries:
-            self.nbytes -= sum(a.nbytes for a in self.entries.pop(name).values())
+            self.nbytes -= _nbytes(self.entries.pop(name))
         self.entries[name] = arrays
         self.nbytes += size
         while self.nbytes > budget:
-            _, old = self.entries.popitem(last=False)
-            self.nbytes -= sum(a.nbytes for a in old.values())
+            self.nbytes -= _nbytes(self.entries.popitem(last=False)[1])
         return arrays
 
 

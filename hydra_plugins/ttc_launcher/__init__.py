@@ -73,10 +73,10 @@ def _drop(container: dict[str, Any], dotted: str) -> None:
     container.pop(leaf, None)
 
 
-def _comparable(cfg: DictConfig, key: str) -> dict[str, Any]:
-    """``cfg`` as plain containers (interpolations unresolved) without ``key``, its choice
-    and the job-specific Hydra keys."""
-    out = OmegaConf.to_container(cfg, resolve=False)
+def _comparable(container: dict[str, Any], key: str) -> dict[str, Any]:
+    """A copy of a config's plain containers (``OmegaConf.to_container``, interpolations
+    unresolved) without ``key``, its choice and the job-specific Hydra keys."""
+    out = copy.deepcopy(container)
     _drop(out, key)
     for job_key in JOB_KEYS:
         _drop(out["hydra"], job_key)
@@ -95,6 +95,7 @@ class JobComposer:
         self.template: list[str] | None = None
         self.template_keys: list[str] = []
         self.base: DictConfig | None = None
+        self.base_container: dict[str, Any] = {}
         self.parts: dict[tuple[int, str], tuple[str, Any, str | None] | None] = {}
         self.full_compositions = 0
 
@@ -114,7 +115,8 @@ class JobComposer:
                 variant[position] = override.input_line
                 cfg = self.full(variant)
                 key = override.key_or_group.replace("/", ".")
-                if _comparable(cfg, key) == _comparable(self.base, key):
+                variant_container = OmegaConf.to_container(cfg, resolve=False)
+                if _comparable(variant_container, key) == _comparable(self.base_container, key):
                     choice = cfg.hydra.runtime.choices.get(key)
                     self.parts[memo] = (key, OmegaConf.select(cfg, key), choice)
         return self.parts[memo]
@@ -124,6 +126,7 @@ class JobComposer:
         overrides = list(overrides)
         if self.base is None:
             self.template, self.base = overrides, self.full(overrides)
+            self.base_container = OmegaConf.to_container(self.base, resolve=False)
             self.template_keys = [o.key_or_group for o in self.parser.parse_overrides(overrides)]
         parsed = self.parser.parse_overrides(overrides)
         if len(overrides) != len(self.template):
