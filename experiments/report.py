@@ -1175,11 +1175,15 @@ RANKING_COLUMNS = [
     "camera_false_alarm_rate", "camera_jitter_s", "camera_invalid", "way_off_frames",
     "n_frames", "ms_per_frame", "ms_compute_per_frame", "run_id",
 ]  # fmt: skip
+#: Columns of ``fp6_camera_ttc.csv``. Two are left out because the file is the largest of a
+#: report (10,780 rows for 0-77) and they follow from others: the run id (``fp6_ranking.csv``
+#: has it per dataset and setting) and the ratio the reference implies, 1 + dt / ttc_ref_s
+#: with dt = (frame - prev_frame) / 10 Hz.
 FP6_COLUMNS = [
     "dataset", "setting", "frame", "prev_frame", "ttc_camera", "camera_reason", "ttc_ref_s",
-    "camera_rel_err", "way_off", "reasons", "camera_ratio", "ratio_expected", "camera_pairs",
+    "camera_rel_err", "way_off", "reasons", "camera_ratio", "camera_pairs",
     "keypoints_curr", "matches_total", "matches_in_box", "matches_kept", "matches_removed",
-    "box_w", "box_h", "detector", "descriptor", "run_id", "examined", "reason_text",
+    "box_w", "box_h", "detector", "descriptor", "examined", "reason_text",
 ]  # fmt: skip
 
 
@@ -1371,7 +1375,8 @@ def fp6_markdown(data, t, ranking, pictures, out: Path) -> str:
         f"(> {EXACT_SHARE:.0%}), matches leaving the object (> {LEAVE_SHARE:.0%} more than "
         f"{LEAVE_PX:.0f} px off the median motion), keypoints on the box edge "
         f"(> {BORDER_SHARE:.0%} within {BORDER_FRAC:.0%} of the border) or on the background "
-        "(lidar depth > 1 m behind the rear). All rows: `fp6_camera_ttc.csv`.",
+        "(lidar depth > 1 m behind the rear). All rows: `fp6_camera_ttc.csv` (run ids per "
+        "setting in `fp6_ranking.csv`; the ratio the reference implies is 1 + dt / ttc_ref_s).",
         "",
         markdown_table(codes.reset_index()),
         "",
