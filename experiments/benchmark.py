@@ -37,7 +37,8 @@ import cv2
 import pandas as pd
 
 from experiments import store
-from experiments.provenance import PROJECT_ROOT, code_version, machine, package_versions
+from experiments.paths import PROJECT_ROOT, default_data_root
+from experiments.provenance import code_version, machine, package_versions
 from ttc.descriptors import DESCRIPTORS, describe_keypoints, is_binary, valid_pairs
 from ttc.frames import load_frame
 from ttc.keypoints import DETECTORS, detect_keypoints
@@ -162,7 +163,7 @@ def run_benchmark(
     grid: dict[str, Any], workdir: Path, skip_nocache: bool = False
 ) -> dict[str, Any]:
     """All four figures and their ratios for ``grid``."""
-    sequence_dir = Path(os.environ.get("TTC_DATA_DIR", PROJECT_ROOT.parent / "shared" / "data"))
+    sequence_dir = default_data_root()
     sequence_dir = sequence_dir / "kitti" / "2011_09_26"
     cores = os.cpu_count() or 1
     cache, results = workdir / "cache", workdir / "sweeps"

@@ -16,10 +16,10 @@ import pandas as pd
 from experiments import store
 from experiments.callbacks import PROGRESS_DIR
 from experiments.reference_store import runs_reference
-from ttc import metrics
+from ttc.evaluation import metrics
+from ttc.pipeline import SETTING_AXES
 
-SETTING_COLUMNS = ["detector", "descriptor", "matcher", "selector", "box_matching",
-                   "lidar_ttc", "keypoint_filter", "camera_ttc"]  # fmt: skip
+SETTING_COLUMNS = list(SETTING_AXES)
 
 
 def interim_scores(frames: pd.DataFrame) -> pd.DataFrame:
@@ -42,7 +42,7 @@ RANKED_COLUMNS = ["rank", "run_id", *SETTING_COLUMNS, "camera_outlier_rate", "ca
 
 
 def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
-    """Runs ranked on the camera TTC by :data:`ttc.metrics.RANKING_RULE` against ``reference``
+    """Runs ranked on the camera TTC by :data:`ttc.evaluation.metrics.RANKING_RULE` against ``reference``
     (rates and relative errors are fractions, time in ms)."""
     ranked = metrics.rank_runs(metrics.run_metrics(frames, reference), "camera")
     return ranked[[c for c in RANKED_COLUMNS if c in ranked]]
@@ -65,7 +65,7 @@ def summarise_sweep(
     cache_dir: Path | None = None,
 ) -> pd.DataFrame:
     """Collect the sweep, print where the dataset is, the run counts and the best settings:
-    ranked against the reference TTC (:mod:`ttc.metrics`), or by the interim camera-vs-lidar
+    ranked against the reference TTC (:mod:`ttc.evaluation.metrics`), or by the interim camera-vs-lidar
     score when no reference can be built. ``data_dir`` / ``cache_dir``: None for the
     configured defaults."""
     frames, runs = store.collect(sweep_dir)
@@ -93,7 +93,7 @@ def summarise_sweep(
         title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
     else:
         scores = ranked_runs(frames, reference)
-        title = "on the camera TTC against the reference (ttc.metrics.RANKING_RULE)"
+        title = "on the camera TTC against the reference (ttc.evaluation.metrics.RANKING_RULE)"
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(f"\nbest {top} settings {title}:")
         print(scores.head(top).to_string(index=False, float_format="%.3g"))

@@ -1,5 +1,5 @@
 """Two sweeps side by side: each setting's metrics in both, better / worse / same beyond the
-bootstrap intervals (:func:`ttc.metrics.compare_runs`).
+bootstrap intervals (:func:`ttc.evaluation.metrics.compare_runs`).
 
 Usage::
 
@@ -22,7 +22,7 @@ from pathlib import Path
 import pandas as pd
 
 from experiments import report
-from ttc import metrics
+from ttc.evaluation import metrics
 
 #: Columns of the comparison shown in the markdown (per sensor ``s``), besides the key.
 SHOWN = ("rank_a", "rank_b", "{s}_outlier_rate_a", "{s}_outlier_rate_b",
@@ -108,7 +108,7 @@ def compare_markdown(table: pd.DataFrame, a: SweepMetrics, b: SweepMetrics, sens
         f"(A has {len(a.metrics)}, B has {len(b.metrics)} ok runs).",
         "",
         "Verdict of B against A beyond the 90 % paired-bootstrap intervals: the outlier rate "
-        "first, the median relative error when those overlap (`ttc.metrics.compare_runs`). "
+        "first, the median relative error when those overlap (`ttc.evaluation.metrics.compare_runs`). "
         f"**{counts.get('better', 0)} better, {counts.get('worse', 0)} worse, "
         f"{counts.get('same', 0)} same.**",
         "",

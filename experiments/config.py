@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,7 +18,7 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from experiments.provenance import PROJECT_ROOT
+from experiments import paths
 from ttc.box_matching import BoxMatchingParams
 from ttc.camera_ttc import CameraTTCParams
 from ttc.descriptors import DESCRIPTORS
@@ -29,7 +28,7 @@ from ttc.lidar import LaneCropParams
 from ttc.lidar_ttc import LidarTTCParams
 from ttc.matching import MatcherParams, SelectorParams
 from ttc.objects import ObjectDetectorParams
-from ttc.pipeline import FrameRange, Settings
+from ttc.pipeline import AXES, FrameRange, Settings
 
 #: Config groups whose options each pick one parameter class by name.
 NAMED_GROUPS: dict[str, dict[str, type]] = {"detector": DETECTORS, "descriptor": DESCRIPTORS}
@@ -43,9 +42,6 @@ SINGLE_CLASS_GROUPS: dict[str, type] = {
     "camera_ttc": CameraTTCParams,
     "objects": ObjectDetectorParams,
 }
-#: The axes of a sweep, in the order of the results' columns.
-AXES = ("detector", "descriptor", "matcher", "selector", "box_matching", "lidar_ttc",
-        "keypoint_filter", "camera_ttc", "objects", "dataset")  # fmt: skip
 
 
 @dataclass
@@ -126,9 +122,9 @@ def _writable(schema: type) -> DictConfig:
 
 
 def register_configs() -> None:
-    """Store the schemas in Hydra's ConfigStore and the ``project_root`` resolver."""
-    if not OmegaConf.has_resolver("project_root"):
-        OmegaConf.register_new_resolver("project_root", lambda: str(PROJECT_ROOT))
+    """Store the schemas in Hydra's ConfigStore and the ``ttc_path`` resolver (default folders)."""
+    if not OmegaConf.has_resolver("ttc_path"):
+        OmegaConf.register_new_resolver("ttc_path", lambda kind: str(paths.default(kind)))
     cs = ConfigStore.instance()
     cs.store(name="ttc_schema", node=_writable(RunConfig))
     for group, registry in NAMED_GROUPS.items():
@@ -156,8 +152,7 @@ def settings_from_config(cfg: DictConfig) -> Settings:
 
 def data_root(cfg: DictConfig) -> Path:
     """The dataset's data root, resolved against the project root when relative."""
-    root = Path(os.path.expanduser(str(cfg.dataset.root)))
-    return root if root.is_absolute() else (PROJECT_ROOT / root).resolve()
+    return paths.resolve(cfg.dataset.root)
 
 
 def frame_range_from_config(cfg: DictConfig) -> FrameRange:

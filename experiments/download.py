@@ -31,7 +31,8 @@ from typing import BinaryIO
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from tqdm import tqdm
 
-from experiments.provenance import PROJECT_ROOT
+from experiments.paths import PROJECT_ROOT, default_data_root
+from ttc.atomic import write_bytes_atomic
 
 DEFAULT_BASE_URL = (
     "https://raw.githubusercontent.com/udacity/SFND_3D_Object_Tracking/master/"
@@ -179,7 +180,7 @@ def write_manifest(
     manifest = _parse_manifest(OmegaConf.create(text))
     if manifest.files != tuple(entries) or manifest.calib != calib:
         raise ValueError(f"the manifest text does not load back to what was scanned from {src}")
-    _write_atomic(Path(out), text.encode("utf-8"))
+    write_bytes_atomic(text.encode("utf-8"), Path(out))
     return manifest
 
 
@@ -206,22 +207,6 @@ class _Meter:
     def add(self, n: int) -> None:
         self.received += n
         self.bar.update(n)
-
-
-def default_data_root() -> Path:
-    """``$TTC_DATA_DIR`` when set, else ``../shared/data`` beside the project root."""
-    return Path(os.environ.get("TTC_DATA_DIR", PROJECT_ROOT.parent / "shared" / "data"))
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    """Write through a temporary file in the same folder and rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def _size(path: Path) -> int:
@@ -364,7 +349,7 @@ def _write_calib(target: Path, calib: dict[str, str], report: DownloadReport) ->
     for name, text in calib.items():
         path, data = target / name, text.encode("utf-8")
         if not (path.is_file() and path.read_bytes() == data):
-            _write_atomic(path, data)
+            write_bytes_atomic(data, path)
             report.calib_written.append(name)
 
 

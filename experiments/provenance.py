@@ -7,9 +7,9 @@ import platform
 import subprocess
 import sys
 from importlib import metadata
-from pathlib import Path
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
+from experiments.paths import PROJECT_ROOT
+
 PACKAGES = ("opencv-contrib-python-headless", "numpy", "scipy", "pandas", "pyarrow", "hydra-core")
 
 

@@ -1,10 +1,8 @@
-"""The reference TTC of a sweep's recording, kept in the stage cache, and the project's
-default data root and cache folder. Light on imports (no plotting): the end-of-sweep summary
+"""The reference TTC of a sweep's recording, kept in the stage cache. Light on imports (no plotting): the end-of-sweep summary
 ranks against the reference without loading the report's libraries."""
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import inspect
 import json
@@ -12,36 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig
 
-from experiments.config import data_root, register_configs
-from experiments.provenance import PROJECT_ROOT
-from ttc import reference as reference_module
+from experiments.paths import default_cache_dir, default_data_root
 from ttc.cache import StageCache, Task, cache_key
+from ttc.evaluation import reference as reference_module
 from ttc.frames import LIDAR_DIR, file_identity, frame_files
 
-#: Bump to invalidate every cached reference (the key also holds ttc/reference.py's source).
+#: Bump to invalidate every cached reference (the key also holds ttc/evaluation/reference.py's source).
 REFERENCE_CACHE_VERSION = 1
-
-
-@functools.cache
-def base_config() -> DictConfig:
-    """The project's composed default config (data root and cache dir, env vars applied)."""
-    from hydra import compose, initialize_config_dir
-
-    register_configs()
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config")
-
-
-def default_data_root() -> Path:
-    """``$TTC_DATA_DIR`` or the configured default data root."""
-    return data_root(base_config())
-
-
-def default_cache_dir() -> Path:
-    """``$TTC_CACHE_DIR`` or the configured default stage cache folder."""
-    return Path(str(base_config().cache.dir))
 
 
 def sequence_of(runs: pd.DataFrame) -> str:
@@ -60,7 +36,7 @@ def _reference_key(sequence_dir: Path, last: int) -> str:
 
 def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
     """Reference TTC over every frame of the recording (:func:`reference_for_sequence`),
-    kept in the stage cache (key: the scans' identities and ``ttc/reference.py``'s source)."""
+    kept in the stage cache (key: the scans' identities and ``ttc/evaluation/reference.py``'s source)."""
     last = len(list((Path(sequence_dir) / LIDAR_DIR).glob("*.bin"))) - 1
     if last < 1:
         raise FileNotFoundError(f"no lidar scans under {Path(sequence_dir) / LIDAR_DIR}")

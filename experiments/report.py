@@ -8,7 +8,7 @@ Usage::
 
 Writes ``metrics.parquet`` beside each sweep (one row per run) and, under ``--out``:
 
-* ``reference.md/.csv/.png``: the reference TTC (:mod:`ttc.reference`) and its caveats;
+* ``reference.md/.csv/.png``: the reference TTC (:mod:`ttc.evaluation.reference`) and its caveats;
 * ``fp5_lidar.md``, ``fp5_lidar_ttc.csv`` (one row per frame × lidar estimator),
   ``fp5_lidar_ttc.png`` and ``fp5_pictures/`` (top views of flagged frames);
 * ``fp6_camera.md``, ``fp6_camera_ttc.csv`` (one row per frame × camera setting),
@@ -52,19 +52,16 @@ from experiments.config import (
     frame_range_from_config,
     settings_from_config,
 )
-from experiments.provenance import PROJECT_ROOT, code_version, machine, package_versions
-from experiments.reference_store import (  # noqa: F401  (re-exported for notebooks)
-    base_config,
-    default_cache_dir,
-    default_data_root,
-    sequence_of,
-    sequence_reference,
-)
-from ttc import metrics, reasons
-from ttc import reference as reference_module
+from experiments.paths import PROJECT_ROOT, default_cache_dir, default_data_root
+from experiments.provenance import code_version, machine, package_versions
+from experiments.reference_store import sequence_of, sequence_reference
+from ttc import reasons
 from ttc import visualize as vis
+from ttc.atomic import write_bytes_atomic
 from ttc.cache import StageCache
 from ttc.camera_ttc import distance_ratios
+from ttc.evaluation import metrics
+from ttc.evaluation import reference as reference_module
 from ttc.keypoints import X, Y
 from ttc.lidar_ttc import LidarTTCParams
 from ttc.lidar_ttc import rear_distance as lidar_rear_distance
@@ -181,7 +178,7 @@ def sweep_overrides(sweep_dir: Path) -> list[str]:
 def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
     frames get ``ms_compute_per_frame`` looked up over all of them
-    (:func:`ttc.metrics.with_compute_times`)."""
+    (:func:`ttc.evaluation.metrics.with_compute_times`)."""
     dirs = [Path(d) for d in dirs]
     frame_parts, run_parts, overrides = [], [], {}
     seen: set[str] = set()
@@ -270,7 +267,7 @@ def reference_for(data: SweepData, ctx: Context) -> pd.DataFrame:
 
 
 def sweep_metrics(frames: pd.DataFrame, runs: pd.DataFrame, reference: pd.DataFrame):
-    """One row per run of ``runs``: axes, status and :func:`ttc.metrics.run_metrics`."""
+    """One row per run of ``runs``: axes, status and :func:`ttc.evaluation.metrics.run_metrics`."""
     keep = ["run_id", "sweep_id", *[a for a in AXES if a in runs], "status", "message"]
     table = runs[keep].copy()
     if not frames.empty:
@@ -379,13 +376,13 @@ def within_budget(image: np.ndarray, max_bytes: int = MAX_PICTURE_BYTES) -> np.n
 
 def save_picture(image: np.ndarray, path: Path) -> Path:
     """Write a picture (at most :data:`MAX_PICTURE_WIDTH` wide, within the byte budget)."""
-    store.write_bytes_atomic(shrink_to_fit(fit_width(image), rgb_png, MAX_PICTURE_BYTES)[1], path)
+    write_bytes_atomic(shrink_to_fit(fit_width(image), rgb_png, MAX_PICTURE_BYTES)[1], path)
     return path
 
 
 def save_top_view(image: np.ndarray, path: Path, max_bytes: int = LIDAR_PICTURE_BYTES) -> Path:
     """Write a drawing as a palette PNG (atomically), downscaled until it fits ``max_bytes``."""
-    store.write_bytes_atomic(shrink_to_fit(image, palette_png, max_bytes)[1], path)
+    write_bytes_atomic(shrink_to_fit(image, palette_png, max_bytes)[1], path)
     return path
 
 
@@ -1351,7 +1348,7 @@ def fp6_markdown(data, t, ranking, pictures, out: Path) -> str:
         "Camera TTC of the lead vehicle per frame for every camera setting in the sweeps, "
         "judged against the reference TTC ([reference.md](reference.md)).",
         "",
-        f"**Ranking rule** (`ttc.metrics.RANKING_RULE`): {metrics.RANKING_RULE} Rank intervals: "
+        f"**Ranking rule** (`ttc.evaluation.metrics.RANKING_RULE`): {metrics.RANKING_RULE} Rank intervals: "
         f"90 % paired bootstrap over frames ({N_BOOT} replicates, seed 0).",
         "",
         f"## Best settings ({len(tied)} whose rank interval includes 1)",

@@ -34,7 +34,6 @@ from omegaconf import DictConfig
 from experiments import store
 from experiments.callbacks import PROGRESS_DIR
 from experiments.config import (
-    AXES,
     data_root,
     frame_range_from_config,
     register_configs,
@@ -45,7 +44,7 @@ from experiments.config import (
 from experiments.provenance import code_version, machine, package_versions
 from ttc.cache import StageCache
 from ttc.descriptors import InvalidCombinationError
-from ttc.pipeline import run_setting
+from ttc.pipeline import AXES, run_setting
 
 register_configs()
 

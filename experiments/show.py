@@ -34,7 +34,6 @@ import numpy as np
 from omegaconf import DictConfig
 
 from experiments.config import (
-    AXES,
     frame_range_from_config,
     register_configs,
     settings_from_config,
@@ -45,7 +44,7 @@ from ttc.cache import StageCache
 from ttc.frames import FrameDataError, frame_files, load_calibration, read_lidar_scan
 from ttc.lidar import project_to_image
 from ttc.objects import coco_names
-from ttc.pipeline import FrameRange, PairDetail, Settings, pair_detail
+from ttc.pipeline import AXES, FrameRange, PairDetail, Settings, pair_detail
 
 register_configs()
 

@@ -16,13 +16,12 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
-import tempfile
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
+
+from ttc.atomic import atomic_write
 
 RUNS_DIR = "runs"
 FRAMES_FILE = "frames.parquet"
@@ -30,33 +29,14 @@ RUNS_FILE = "runs.parquet"
 COMPLETE_STATUSES = ("ok", "skipped")
 
 
-def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; results are for everyone to read
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-
-
 def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
     """Write ``df`` to ``path`` as parquet, atomically."""
-    _atomic_write(path, lambda tmp: df.to_parquet(tmp, index=False))
-
-
-def write_bytes_atomic(data: bytes, path: Path) -> None:
-    """Write ``data`` to ``path`` through a temporary file and a rename."""
-    _atomic_write(Path(path), lambda tmp: tmp.write_bytes(data))
+    atomic_write(path, lambda tmp: df.to_parquet(tmp, index=False))
 
 
 def write_json_atomic(obj: Any, path: Path) -> None:
     """Write ``obj`` to ``path`` as JSON, atomically."""
-    _atomic_write(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=1, default=str)))
+    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=1, default=str)))
 
 
 def run_paths(sweep_dir: Path, run_id: str) -> tuple[Path, Path]:

@@ -28,7 +28,7 @@ import seaborn as sns
 from IPython.display import Markdown, display
 
 from experiments import report
-from ttc.reference import REFERENCE_CAVEATS
+from ttc.evaluation.reference import REFERENCE_CAVEATS
 
 # %% tags=["parameters"]
 SWEEP_DIR = os.environ.get("TTC_SWEEP_DIR", "sweeps/fp5_lidar_kitti_0_18")

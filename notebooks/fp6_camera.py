@@ -28,7 +28,7 @@ import seaborn as sns
 from IPython.display import Markdown, display
 
 from experiments import report
-from ttc import metrics
+from ttc.evaluation import metrics
 
 # %% tags=["parameters"]
 SWEEP_DIR = os.environ.get("TTC_SWEEP_DIR", "sweeps/fp6_grid_kitti_0_18")

@@ -14,8 +14,8 @@
 # %% [markdown]
 # # Ranking of the settings of a sweep
 #
-# Every ok run of the sweep judged against the reference TTC (`ttc.reference`), ranked by
-# `ttc.metrics.RANKING_RULE`, with 90 % paired-bootstrap rank intervals. The same functions
+# Every ok run of the sweep judged against the reference TTC (`ttc.evaluation.reference`), ranked by
+# `ttc.evaluation.metrics.RANKING_RULE`, with 90 % paired-bootstrap rank intervals. The same functions
 # as `python -m experiments.report` (`experiments/report.py`) build the tables.
 
 # %%
@@ -27,7 +27,7 @@ import seaborn as sns
 from IPython.display import Markdown, display
 
 from experiments import report
-from ttc import metrics
+from ttc.evaluation import metrics
 
 # %% tags=["parameters"]
 SWEEP_DIR = os.environ.get("TTC_SWEEP_DIR", "sweeps/fp6_grid_kitti_0_18")

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ttc.metrics import (
+from ttc.evaluation.metrics import (
     AXES,
     RANKING_RULE,
     attach_reference,

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ttc.reference import (
+from ttc.evaluation.reference import (
     REFERENCE_CAVEATS,
     lead_points,
     rear_distance,

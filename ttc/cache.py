@@ -23,8 +23,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import os
-import tempfile
 import time
 import zipfile
 from collections import OrderedDict
@@ -34,6 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ttc.atomic import atomic_write
 
 try:
     import fcntl
@@ -158,16 +158,12 @@ class StageCache:
         if not self.enabled:
             return
         path = self.path(stage, key)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{key}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as handle:
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as handle:
                 np.savez(handle, **arrays, **{_KEY_FIELD: np.array(key)})
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(tmp)
-            raise
+
+        atomic_write(path, write)
 
     def _discard(self, path: Path) -> None:
         self.corrupt_entries += 1

@@ -58,29 +58,40 @@ STAGE_VERSIONS = {"objects": 1, "lidar": 1, "keypoints": 1, "descriptors": 1, "m
 CACHED_STAGES = tuple(STAGE_VERSIONS)
 
 
+#: Field metadata of a :class:`Settings` field that is a sweep axis.
+AXIS = {"axis": True}
+
+
 @dataclass(frozen=True)
 class Settings:
     """One value of every axis of a sweep (each a params dataclass of its stage)."""
 
-    detector: Any
-    descriptor: Any
-    matcher: MatcherParams = field(default_factory=MatcherParams)
-    selector: SelectorParams = field(default_factory=SelectorParams)
-    box_matching: BoxMatchingParams = field(default_factory=BoxMatchingParams)
-    lidar_ttc: LidarTTCParams = field(default_factory=LidarTTCParams)
-    keypoint_filter: KeypointFilterParams = field(default_factory=KeypointFilterParams)
-    camera_ttc: CameraTTCParams = field(default_factory=CameraTTCParams)
-    objects: ObjectDetectorParams = field(default_factory=ObjectDetectorParams)
+    detector: Any = field(metadata=AXIS)
+    descriptor: Any = field(metadata=AXIS)
+    matcher: MatcherParams = field(default_factory=MatcherParams, metadata=AXIS)
+    selector: SelectorParams = field(default_factory=SelectorParams, metadata=AXIS)
+    box_matching: BoxMatchingParams = field(default_factory=BoxMatchingParams, metadata=AXIS)
+    lidar_ttc: LidarTTCParams = field(default_factory=LidarTTCParams, metadata=AXIS)
+    keypoint_filter: KeypointFilterParams = field(
+        default_factory=KeypointFilterParams, metadata=AXIS
+    )
+    camera_ttc: CameraTTCParams = field(default_factory=CameraTTCParams, metadata=AXIS)
+    objects: ObjectDetectorParams = field(default_factory=ObjectDetectorParams, metadata=AXIS)
     lane: LaneCropParams = field(default_factory=LaneCropParams)
     lidar_shrink: float = 0.10
 
     def axes(self) -> dict[str, str]:
         """The name chosen on every axis, e.g. ``{"detector": "fast", ...}``."""
-        return {
-            f.name: getattr(self, f.name).name
-            for f in dataclasses.fields(self)
-            if hasattr(getattr(self, f.name), "name")
-        }
+        return {axis: getattr(self, axis).name for axis in SETTING_AXES}
+
+
+#: The stage axes of a setting: the fields of :class:`Settings` that pick a variant by name.
+SETTING_AXES: tuple[str, ...] = tuple(
+    f.name for f in dataclasses.fields(Settings) if f.metadata.get("axis")
+)
+#: Every axis of a sweep, in the order of the results' columns: the stage axes, then the
+#: dataset (the recording and frame range). The one list: configs, runs, metrics, reports.
+AXES: tuple[str, ...] = (*SETTING_AXES, "dataset")
 
 
 @dataclass(frozen=True)

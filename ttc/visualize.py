@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,6 +19,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from ttc.atomic import write_bytes_atomic
 from ttc.keypoints import X, Y
 from ttc.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams, rear_distance
 
@@ -673,14 +672,4 @@ def save_png(image: np.ndarray, path: Path | str) -> Path:
         raise OSError(f"{path}: OpenCV could not encode the image as PNG: {exc}") from exc
     if not ok:
         raise OSError(f"{path}: OpenCV could not encode the image as PNG")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png.tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.tobytes())
-        os.chmod(tmp, 0o644)  # mkstemp makes the file private; a picture is for everyone
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_bytes_atomic(buf.tobytes(), path)

@@ -28,19 +28,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-#: Axis columns of a setting (one Hydra config group each).
-AXES: tuple[str, ...] = (
-    "detector",
-    "descriptor",
-    "matcher",
-    "selector",
-    "box_matching",
-    "lidar_ttc",
-    "keypoint_filter",
-    "camera_ttc",
-    "objects",
-    "dataset",
-)
+from ttc.pipeline import AXES
+
 SENSORS: tuple[str, ...] = ("camera", "lidar")
 #: Relative error above which a TTC is an outlier.
 OUTLIER_REL = 0.3
