@@ -24,6 +24,7 @@ import contextlib
 import hashlib
 import json
 import time
+import warnings
 import zipfile
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
@@ -81,6 +82,8 @@ class _Recent:
 
 
 _RECENT = _Recent()
+#: Cache folders this process found unwritable (warned once each).
+_UNWRITABLE: set[str] = set()
 
 
 def cache_key(stage: str, *parts: Any) -> str:
@@ -118,6 +121,7 @@ class StageCache:
         self.enabled = enabled and directory is not None
         self.memory_bytes = int(memory_mb * 2**20) if self.enabled else 0
         self.corrupt_entries = 0
+        self.writable = self.enabled and str(self.directory) not in _UNWRITABLE
 
     def _name(self, stage: str, key: str) -> tuple[str, str]:
         return (str(self.directory), f"{stage}/{key}")
@@ -155,7 +159,7 @@ class StageCache:
 
     def store(self, stage: str, key: str, arrays: Arrays) -> None:
         """Write an entry atomically (temporary file + rename)."""
-        if not self.enabled:
+        if not self.writable:
             return
         path = self.path(stage, key)
 
@@ -163,7 +167,22 @@ class StageCache:
             with open(tmp, "wb") as handle:
                 np.savez(handle, **arrays, **{_KEY_FIELD: np.array(key)})
 
-        atomic_write(path, write)
+        try:
+            atomic_write(path, write)
+        except OSError as exc:  # read-only or full: go on without storing
+            self._unwritable(exc)
+
+    def _unwritable(self, exc: OSError) -> None:
+        """Stop writing to this cache folder in this process, with one warning."""
+        self.writable = False
+        if str(self.directory) not in _UNWRITABLE:
+            _UNWRITABLE.add(str(self.directory))
+            warnings.warn(
+                f"stage cache {self.directory} cannot be written ({exc.strerror or exc}): "
+                "computing without caching",
+                RuntimeWarning,
+                stacklevel=3,
+            )
 
     def _discard(self, path: Path) -> None:
         self.corrupt_entries += 1
@@ -173,12 +192,18 @@ class StageCache:
     # -- locking -----------------------------------------------------------------------------
     @contextlib.contextmanager
     def _lock(self, stage: str, key: str, blocking: bool) -> Iterator[bool]:
-        if not self.enabled or fcntl is None:
+        if not self.writable or fcntl is None:
             yield True
             return
         lock_path = self.path(stage, key).with_suffix(".lock")
-        lock_path.parent.mkdir(parents=True, exist_ok=True)
-        with open(lock_path, "a+b") as handle:
+        try:
+            lock_path.parent.mkdir(parents=True, exist_ok=True)
+            handle = open(lock_path, "a+b")  # noqa: SIM115 (closed below)
+        except OSError as exc:
+            self._unwritable(exc)
+            yield True
+            return
+        with handle:
             flags = fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB)
             try:
                 fcntl.flock(handle, flags)

@@ -14,6 +14,10 @@ record should not cost a frame, and the count makes the damage visible in the re
 
 from __future__ import annotations
 
+import contextlib
+import datetime as dt
+import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,34 +63,73 @@ class Calibration:
         return self.p_rect @ r_rect @ self.velo_to_cam
 
 
-def parse_calibration_text(text: str, source: Path | str = "<text>") -> dict[str, np.ndarray]:
-    """Parse ``key: v1 v2 ...`` lines into float arrays; non-numeric entries are skipped."""
-    values: dict[str, np.ndarray] = {}
+def calibration_entries(text: str, source: Path | str = "<text>") -> dict[str, str]:
+    """The ``key: value`` lines of a calibration file as raw strings (no parsing)."""
+    entries: dict[str, str] = {}
     for line in text.splitlines():
         key, sep, rest = line.partition(":")
-        if not sep:
-            continue
-        try:
-            values[key.strip()] = np.array(rest.split(), dtype=np.float64)
-        except ValueError:
-            continue  # e.g. calib_time: 15-Mar-2012 11:37:16
-    if not values:
+        if sep:
+            entries[key.strip()] = rest.strip()
+    if not entries:
         raise FrameDataError(source, "no 'key: numbers' lines found")
+    return entries
+
+
+def _numbers(entries: dict[str, str], key: str, path: Path | str) -> np.ndarray:
+    """The entry ``key`` as finite float64 numbers; an error naming file, key and value else."""
+    raw = entries[key]
+    try:
+        values = np.array([float(word) for word in raw.split()], dtype=np.float64)
+    except ValueError:
+        bad = next(w for w in raw.split() if not _is_float(w))
+        raise FrameDataError(path, f"'{key}' has a non-numeric value {bad!r}") from None
+    if not np.isfinite(values).all():
+        bad = raw.split()[int(np.flatnonzero(~np.isfinite(values))[0])]
+        raise FrameDataError(path, f"'{key}' has a non-finite value {bad!r}")
     return values
 
 
-def _read_calibration_file(path: Path) -> dict[str, np.ndarray]:
+def _is_float(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
+def parse_calibration_text(text: str, source: Path | str = "<text>") -> dict[str, np.ndarray]:
+    """Parse ``key: v1 v2 ...`` lines into finite float arrays.
+
+    Entries whose every word is non-numeric (``calib_time: 15-Mar-2012 11:37:16``) are left
+    out; an entry mixing numbers with a non-numeric word (``7.2l5377e+02``) or holding a
+    non-finite number raises :class:`FrameDataError` naming the file, key and value.
+    """
+    entries = calibration_entries(text, source)
+    values: dict[str, np.ndarray] = {}
+    for key, raw in entries.items():
+        if raw and not any(_is_float(word) for word in raw.split()):
+            continue  # a date or a name, not numbers
+        values[key] = _numbers(entries, key, source)
+    return values
+
+
+def _read_calibration_file(path: Path) -> dict[str, str]:
     if not path.is_file():
         raise FrameDataError(path, "calibration file not found")
-    return parse_calibration_text(path.read_text(), path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FrameDataError(path, f"unreadable calibration file ({exc})") from exc
+    return calibration_entries(text, path)
 
 
-def _matrix(values: dict[str, np.ndarray], key: str, shape: tuple[int, int], path: Path):
-    if key not in values:
+def _matrix(entries: dict[str, str], key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
+    if key not in entries:
         raise FrameDataError(path, f"missing entry '{key}'")
-    if values[key].size != shape[0] * shape[1]:
-        raise FrameDataError(path, f"'{key}' has {values[key].size} numbers, expected {shape}")
-    return values[key].reshape(shape)
+    values = _numbers(entries, key, path)
+    if values.size != shape[0] * shape[1]:
+        raise FrameDataError(path, f"'{key}' has {values.size} numbers, expected {shape}")
+    return values.reshape(shape)
 
 
 def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") -> Calibration:
@@ -104,7 +147,7 @@ def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") ->
     velo_to_cam = np.eye(4)
     velo_to_cam[:3, :3] = _matrix(velo, "R", (3, 3), velo_path)
     velo_to_cam[:3, 3] = _matrix(velo, "T", (3, 1), velo_path)[:, 0]
-    size = cam.get("S_rect_02", np.array([1242.0, 375.0]))
+    size = _matrix(cam, "S_rect_02", (1, 2), cam_path)[0] if "S_rect_02" in cam else (1242, 375)
     return Calibration(
         p_rect=_matrix(cam, projection, (3, 4), cam_path),
         r_rect_00=_matrix(cam, "R_rect_00", (3, 3), cam_path),
@@ -177,10 +220,114 @@ def frame_files(sequence_dir: Path | str, index: int) -> FrameFiles:
 
 
 def file_identity(path: Path | str) -> tuple[str, int, int]:
-    """(resolved path, size in bytes, mtime in ns): identifies a file's content for caching."""
+    """(resolved path, size in bytes, mtime in ns): identifies a file's content for caching.
+
+    Raises :class:`FrameDataError` naming the file when it does not exist.
+    """
     path = Path(path).resolve()
-    stat = path.stat()
+    try:
+        stat = path.stat()
+    except FileNotFoundError:
+        raise FrameDataError(path, "file not found") from None
+    except OSError as exc:
+        raise FrameDataError(path, f"cannot read ({exc.strerror})") from None
     return str(path), stat.st_size, stat.st_mtime_ns
+
+
+def recording_frames(sequence_dir: Path | str) -> list[int]:
+    """Indices of the frames a recording holds (an image or a scan named ``NNNNNNNNNN``)."""
+    sequence_dir = Path(sequence_dir)
+    found: set[int] = set()
+    for folder, suffix in ((IMAGE_DIR, ".png"), (LIDAR_DIR, ".bin")):
+        with contextlib.suppress(FileNotFoundError, NotADirectoryError):
+            for entry in os.scandir(sequence_dir / folder):
+                stem, ext = os.path.splitext(entry.name)
+                if ext == suffix and len(stem) == 10 and stem.isdigit():
+                    found.add(int(stem))
+    return sorted(found)
+
+
+def check_frame_range(sequence_dir: Path | str, indices: list[int]) -> None:
+    """Raise :class:`FrameDataError` when ``indices`` go past the recording's last frame.
+
+    A frame missing *inside* the recording is not refused here: it becomes a frame error of
+    its pairs. The message names the frames that exist.
+    """
+    sequence_dir = Path(sequence_dir)
+    present = recording_frames(sequence_dir)
+    if not present:
+        raise FrameDataError(sequence_dir / IMAGE_DIR, "no frames (NNNNNNNNNN.png / .bin) found")
+    if indices and max(indices) > present[-1]:
+        raise FrameDataError(
+            sequence_dir,
+            f"frame range {indices[0]}..{max(indices)} goes past the recording's last frame: "
+            f"frames {present[0]}–{present[-1]} exist",
+        )
+
+
+#: KITTI timestamp files beside the data folders, in order of preference (lidar first).
+TIMESTAMP_FILES = (LIDAR_DIR.parent / "timestamps.txt", IMAGE_DIR.parent / "timestamps.txt")
+_TIMESTAMP = re.compile(r"(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})(?:\.(\d{1,9}))?")
+
+
+def _timestamp_ns(line: str, path: Path, number: int) -> int:
+    """Nanoseconds since 1970 of one ``YYYY-MM-DD HH:MM:SS.fffffffff`` line (UTC assumed)."""
+    match = _TIMESTAMP.fullmatch(line.strip())
+    try:
+        if match is None:
+            raise ValueError("expected 'YYYY-MM-DD HH:MM:SS.fffffffff'")
+        year, month, day, hour, minute, second = (int(g) for g in match.groups()[:6])
+        when = dt.datetime(year, month, day, hour, minute, second, tzinfo=dt.UTC)
+    except ValueError as exc:
+        raise FrameDataError(path, f"line {number}: malformed timestamp {line!r} ({exc})") from None
+    fraction = (match.group(7) or "").ljust(9, "0")
+    return int(when.timestamp()) * 1_000_000_000 + int(fraction or 0)
+
+
+def timestamps_file(sequence_dir: Path | str) -> Path | None:
+    """The timestamps file :func:`read_frame_times` reads (lidar preferred), or None."""
+    for name in TIMESTAMP_FILES:
+        if (Path(sequence_dir) / name).is_file():
+            return Path(sequence_dir) / name
+    return None
+
+
+def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
+    """Seconds of every frame index relative to frame 0, from the recording's KITTI
+    ``timestamps.txt`` (``velodyne_points/`` preferred over ``image_02/``); None when the
+    recording has neither file.
+
+    Raises :class:`FrameDataError` naming the file and line for a malformed line and for times
+    that are not strictly increasing. Values are rounded to the nanosecond of the file.
+    """
+    path = timestamps_file(sequence_dir)
+    if path is None:
+        return None
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FrameDataError(path, f"unreadable timestamps file ({exc})") from exc
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise FrameDataError(path, "no timestamps")
+    ns = [_timestamp_ns(line, path, number) for number, line in enumerate(lines, start=1)]
+    for number in range(1, len(ns)):
+        if ns[number] <= ns[number - 1]:
+            raise FrameDataError(
+                path,
+                f"line {number + 1}: time {lines[number].strip()!r} is not after line "
+                f"{number}'s {lines[number - 1].strip()!r} (times must strictly increase)",
+            )
+    return (np.array(ns, dtype=np.int64) - ns[0]) / 1e9
+
+
+def pair_interval(times: np.ndarray | None, prev: int, curr: int, step: int = 1) -> float:
+    """Seconds between frames ``prev`` and ``curr``: from ``times`` (:func:`read_frame_times`)
+    when given, else ``step`` periods of the nominal 10 Hz."""
+    if times is None:
+        return frame_interval(step)
+    return float(np.round(times[curr] - times[prev], 9))
 
 
 @dataclass(frozen=True)

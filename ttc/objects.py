@@ -381,3 +381,13 @@ def detect_objects(
         roi=roi[order],
         class_names=names,
     )
+
+
+def model_identity(params: ObjectDetectorParams) -> list[tuple[str, int, int]]:
+    """(resolved path, size in bytes, mtime in ns) of the cfg, weights and class-names files:
+    part of the objects cache key, so replacing a model file invalidates its entries."""
+    identities = []
+    for kind in ("cfg", "weights", "names"):
+        stat = model_file(params, kind).stat()
+        identities.append((str(model_file(params, kind)), stat.st_size, stat.st_mtime_ns))
+    return identities

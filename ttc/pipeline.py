@@ -37,22 +37,29 @@ from ttc.cache import Lookup, StageCache, Task, cache_key
 from ttc.camera_ttc import CameraTTCParams, camera_ttc
 from ttc.descriptors import check_pair, describe_keypoints, is_binary
 from ttc.frames import (
+    CAM_TO_CAM,
+    TIMESTAMP_FILES,
+    VELO_TO_CAM,
     Calibration,
     FrameDataError,
+    check_frame_range,
     file_identity,
     frame_files,
     frame_indices,
     frame_interval,
     load_calibration,
+    pair_interval,
+    read_frame_times,
     read_image,
     read_lidar_scan,
+    timestamps_file,
 )
 from ttc.keypoint_filter import KeypointFilterParams, filter_box_matches
 from ttc.keypoints import X, Y, detect_keypoints
 from ttc.lidar import LaneCropParams, assign_points_to_boxes, crop_to_lane, project_to_image
 from ttc.lidar_ttc import LidarTTCParams, lidar_ttc
 from ttc.matching import MatcherParams, SelectorParams, knn_candidates, select_matches
-from ttc.objects import ObjectDetectorParams, detect_objects
+from ttc.objects import ObjectDetectorParams, detect_objects, model_identity
 
 STAGE_VERSIONS = {"objects": 1, "lidar": 1, "keypoints": 1, "descriptors": 1, "matches": 1}
 CACHED_STAGES = tuple(STAGE_VERSIONS)
@@ -119,8 +126,20 @@ def _params(obj: Any) -> dict[str, Any]:
     return dataclasses.asdict(obj)
 
 
+#: Library versions in every cache key: a new OpenCV or numpy may change any stage's output.
+LIBRARY_VERSIONS = {"opencv": cv2.__version__, "numpy": np.__version__}
+#: Frames whose per-frame stages are resolved together (cooperative fill); the decoded images
+#: and stage arrays of at most this many frames (+1) are held at once.
+CHUNK_FRAMES = 8
+PER_FRAME_STAGES = ("objects", "lidar", "keypoints", "descriptors")
+
+
 class _FrameStages:
-    """Cache tasks of one job, created lazily and shared between the pairs that need them."""
+    """Cache tasks of one job, created lazily and shared between the pairs that need them.
+
+    Each key chains the keys of the stages it is computed from (keypoints → descriptors →
+    matches), so a new version or parameter of an upstream stage reaches every downstream key.
+    """
 
     def __init__(self, settings: Settings, frames: FrameRange, cache: StageCache) -> None:
         self.settings, self.frames, self.cache = settings, frames, cache
@@ -128,6 +147,13 @@ class _FrameStages:
         self._tasks: dict[tuple, Task] = {}
         self._images: dict[int, np.ndarray] = {}
         self._grays: dict[int, np.ndarray] = {}
+        self._model: list | None = None
+
+    def forget(self, keep: int) -> None:
+        """Drop the images and tasks (with their arrays) of every frame but ``keep``."""
+        self._images = {i: v for i, v in self._images.items() if i == keep}
+        self._grays = {i: v for i, v in self._grays.items() if i == keep}
+        self._tasks = {k: t for k, t in self._tasks.items() if k[1] == (keep,)}
 
     def _image(self, index: int) -> np.ndarray:
         if index not in self._images:
@@ -139,9 +165,9 @@ class _FrameStages:
             self._grays[index] = cv2.cvtColor(self._image(index), cv2.COLOR_BGR2GRAY)
         return self._grays[index]
 
-    def _task(self, stage: str, ident: tuple, parts: tuple, compute: Callable[[], dict]) -> Task:
+    def _task(self, stage: str, ident: tuple, parts: Callable[[], tuple], compute) -> Task:
         if (stage, ident) not in self._tasks:
-            key = cache_key(stage, STAGE_VERSIONS[stage], *parts)
+            key = cache_key(stage, STAGE_VERSIONS[stage], LIBRARY_VERSIONS, *parts())
             self._tasks[(stage, ident)] = Task(stage, key, compute)
         return self._tasks[(stage, ident)]
 
@@ -150,12 +176,15 @@ class _FrameStages:
 
     def objects(self, index: int) -> Task:
         params = self.settings.objects
+        if self._model is None:
+            self._model = model_identity(params)
 
         def compute() -> dict:
             det = detect_objects(self._image(index), params)
             return {"class_id": det.class_id, "confidence": det.confidence, "roi": det.roi}
 
-        return self._task("objects", (index,), (self._image_id(index), _params(params)), compute)
+        parts = lambda: (self._image_id(index), _params(params), self._model)  # noqa: E731
+        return self._task("objects", (index,), parts, compute)
 
     def lidar(self, index: int) -> Task:
         path = frame_files(self.frames.sequence_dir, index).scan
@@ -169,7 +198,8 @@ class _FrameStages:
                 "n_dropped": np.int64(scan.n_dropped),
             }
 
-        return self._task("lidar", (index,), (file_identity(path), _params(crop)), compute)
+        parts = lambda: (file_identity(path), _params(crop))  # noqa: E731
+        return self._task("lidar", (index,), parts, compute)
 
     def keypoints(self, index: int) -> Task:
         params = self.settings.detector
@@ -177,36 +207,44 @@ class _FrameStages:
         def compute() -> dict:
             return {"keypoints": detect_keypoints(self._gray(index), params)}
 
-        return self._task("keypoints", (index,), (self._image_id(index), _params(params)), compute)
+        parts = lambda: (self._image_id(index), _params(params))  # noqa: E731
+        return self._task("keypoints", (index,), parts, compute)
 
     def descriptors(self, index: int) -> Task:
         det, desc = self.settings.detector, self.settings.descriptor
+        upstream = self.keypoints(index)
 
         def compute() -> dict:
-            keypoints = self.cache.get(self.keypoints(index)).arrays["keypoints"]
+            keypoints = self.cache.get(upstream).arrays["keypoints"]
             kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
             return {"keypoints": kept, "descriptors": descriptors}
 
-        parts = (self._image_id(index), _params(det), _params(desc))
+        parts = lambda: (upstream.key, _params(desc))  # noqa: E731
         return self._task("descriptors", (index,), parts, compute)
 
     def matches(self, prev: int, curr: int) -> Task:
         s = self.settings
+        up_prev, up_curr = self.descriptors(prev), self.descriptors(curr)
 
         def compute() -> dict:
-            d_prev = self.cache.get(self.descriptors(prev)).arrays["descriptors"]
-            d_curr = self.cache.get(self.descriptors(curr)).arrays["descriptors"]
+            d_prev = self.cache.get(up_prev).arrays["descriptors"]
+            d_curr = self.cache.get(up_curr).arrays["descriptors"]
             idx, dist = knn_candidates(d_prev, d_curr, self.binary, s.matcher)
             return {"idx": idx, "dist": dist}
 
-        parts = (
-            self._image_id(prev),
-            self._image_id(curr),
-            _params(s.detector),
-            _params(s.descriptor),
-            _params(s.matcher),
-        )
+        parts = lambda: (up_prev.key, up_curr.key, _params(s.matcher))  # noqa: E731
         return self._task("matches", (prev, curr), parts, compute)
+
+
+def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
+    """Every input file a run of ``settings`` on ``frames`` reads (some may not exist): the
+    calibration and timestamps files, each frame's image and scan, the object model files."""
+    seq = Path(frames.sequence_dir)
+    files = [seq / CAM_TO_CAM, seq / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
+    for index in frames.indices:
+        ff = frame_files(seq, index)
+        files += [ff.image, ff.scan]
+    return files + [Path(path) for path, _, _ in model_identity(settings.objects)]
 
 
 #: FP.2–FP.4 columns of a box pair that could not be evaluated (types as in a full row).
@@ -258,49 +296,87 @@ def run_setting(
     """TTC rows for every consecutive frame pair of ``frames`` under one setting.
 
     Raises :class:`ttc.descriptors.InvalidCombinationError` before any work for an invalid
-    detector × descriptor pair and :class:`ttc.frames.FrameDataError` for unreadable input;
-    every degenerate TTC case is a row with NaN/inf and a reason code instead.
+    detector × descriptor pair, and :class:`ttc.frames.FrameDataError` before any work for a
+    frame range past the recording's last frame or a bad calibration or timestamps file. A
+    frame that cannot be read gives its pairs one row each with reason ``frame_error`` and
+    the message; every degenerate TTC case is a row with NaN/inf and a reason code. ``dt``
+    comes from the recording's timestamps when it has them, else the nominal 10 Hz.
+    Frames are processed in chunks of :data:`CHUNK_FRAMES`, so memory does not grow with the
+    length of the range.
     """
     check_pair(settings.detector.name, settings.descriptor.name)
-    cache = cache if cache is not None else StageCache(None)
-    calib = calibration or load_calibration(frames.sequence_dir, frames.projection)
-    per_frame, matches, broken = _resolve_stages(settings, frames, cache)
-    rows: list[dict[str, Any]] = []
-    for prev, curr in _pairs(frames.indices):
-        if (prev, curr) in matches:
-            rows.extend(
-                _pair_rows(settings, frames, calib, prev, curr, per_frame, matches[(prev, curr)])
-            )
-        else:
-            rows.append(_error_row(prev, curr, frames.dt, broken.get(curr) or broken[prev]))
-    return pd.DataFrame.from_records(rows)
-
-
-def _resolve_stages(settings: Settings, frames: FrameRange, cache: StageCache):
-    """Every cached stage of a frame range: per-frame lookups, pair matches, broken frames.
-
-    Cooperative fill: per-frame stages first, then pair matches; entries another worker is
-    computing right now are deferred (see :meth:`StageCache.resolve`). A frame whose input
-    cannot be read is returned in ``broken`` with its error instead of stopping the run.
-    """
     indices = frames.indices
     if len(indices) < 2:
         raise ValueError(f"need at least two frames, got {indices}")
-    stages = _FrameStages(settings, frames, cache)
-    per_frame: dict[str, dict[int, Lookup]] = {}
-    broken: dict[int, Exception] = {}
-    for name in ("objects", "lidar", "keypoints", "descriptors"):
-        todo = [i for i in indices if i not in broken]
-        found = cache.resolve([getattr(stages, name)(i) for i in todo], errors=(FrameDataError,))
-        per_frame[name] = {}
-        for i, out in zip(todo, found, strict=True):
+    check_frame_range(frames.sequence_dir, indices)
+    times = read_frame_times(frames.sequence_dir)
+    if times is not None and indices[-1] >= len(times):
+        raise FrameDataError(
+            timestamps_file(frames.sequence_dir),
+            f"{len(times)} timestamps: none for frame {indices[-1]}",
+        )
+    cache = cache if cache is not None else StageCache(None)
+    calib = calibration or load_calibration(frames.sequence_dir, frames.projection)
+    rows: list[dict[str, Any]] = []
+    for pairs, per_frame, matches, broken in _stream(settings, frames, cache, indices):
+        for prev, curr in pairs:
+            dt = pair_interval(times, prev, curr, frames.step)
+            if (prev, curr) in matches:
+                match = matches[(prev, curr)]
+                rows.extend(_pair_rows(settings, frames, calib, dt, prev, curr, per_frame, match))
+            else:
+                rows.append(_error_row(prev, curr, dt, broken.get(curr) or broken[prev]))
+    return pd.DataFrame.from_records(rows)
+
+
+def _resolve_frames(
+    stages: _FrameStages,
+    todo: list[int],
+    per_frame: dict[str, dict[int, Lookup]],
+    broken: dict[int, Exception],
+) -> None:
+    """Resolve the per-frame stages of ``todo`` into ``per_frame``; unreadable frames (a
+    missing or damaged file, found when the key or the entry is made) go to ``broken``."""
+    for name in PER_FRAME_STAGES:
+        tasks, owners = [], []
+        for i in todo:
+            if i in broken:
+                continue
+            try:
+                tasks.append(getattr(stages, name)(i))
+                owners.append(i)
+            except FrameDataError as exc:
+                broken[i] = exc
+        found = stages.cache.resolve(tasks, errors=(FrameDataError,))
+        for i, out in zip(owners, found, strict=True):
             if isinstance(out, Exception):
                 broken[i] = out
             else:
                 per_frame[name][i] = out
-    good = [(p, c) for p, c in _pairs(indices) if p not in broken and c not in broken]
-    matches = dict(zip(good, cache.resolve([stages.matches(p, c) for p, c in good]), strict=True))
-    return per_frame, matches, broken
+
+
+def _stream(settings: Settings, frames: FrameRange, cache: StageCache, indices: list[int]):
+    """Yield ``(pairs, per-frame lookups, pair matches, broken frames)`` chunk by chunk.
+
+    Cooperative fill within a chunk: per-frame stages first, then the pairs ending in the
+    chunk; entries another worker is computing right now are deferred (see
+    :meth:`StageCache.resolve`). After a chunk only its last frame's data is kept.
+    """
+    stages = _FrameStages(settings, frames, cache)
+    per_frame: dict[str, dict[int, Lookup]] = {name: {} for name in PER_FRAME_STAGES}
+    broken: dict[int, Exception] = {}
+    all_pairs = list(_pairs(indices))
+    for start in range(0, len(indices), CHUNK_FRAMES):
+        todo = indices[start : start + CHUNK_FRAMES]
+        _resolve_frames(stages, todo, per_frame, broken)
+        pairs = [(p, c) for p, c in all_pairs if c in todo]
+        good = [(p, c) for p, c in pairs if p not in broken and c not in broken]
+        found = cache.resolve([stages.matches(p, c) for p, c in good])
+        yield pairs, per_frame, dict(zip(good, found, strict=True)), broken
+        stages.forget(keep=todo[-1])
+        for lookups in per_frame.values():
+            for i in [i for i in lookups if i != todo[-1]]:
+                del lookups[i]
 
 
 @dataclass
@@ -335,11 +411,14 @@ def pair_detail(
     cache = cache if cache is not None else StageCache(None)
     calib = load_calibration(frames.sequence_dir, frames.projection)
     pair = dataclasses.replace(frames, first=prev, last=curr, step=curr - prev)
-    per_frame, matches, broken = _resolve_stages(settings, pair, cache)
+    check_frame_range(frames.sequence_dir, [prev, curr])
+    dt = pair_interval(read_frame_times(frames.sequence_dir), prev, curr, curr - prev)
+    _, per_frame, matches, broken = next(_stream(settings, pair, cache, [prev, curr]))
     if broken:
         raise next(iter(broken.values()))
     detail: dict[str, Any] = {}
-    rows = _pair_rows(settings, pair, calib, prev, curr, per_frame, matches[(prev, curr)], detail)
+    match = matches[(prev, curr)]
+    rows = _pair_rows(settings, pair, calib, dt, prev, curr, per_frame, match, detail)
     empty = np.zeros(0, dtype=np.int64)
     return PairDetail(
         prev=prev,
@@ -363,13 +442,15 @@ def _pair_rows(
     s: Settings,
     frames: FrameRange,
     calib: Calibration,
+    dt: float,
     prev: int,
     curr: int,
     per_frame: dict[str, dict[int, Lookup]],
     match_lookup: Lookup,
     detail: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """FP.1–FP.4 for one frame pair: one row per matched box pair (lead first).
+    """FP.1–FP.4 for one frame pair ``dt`` seconds apart: one row per matched box pair
+    (lead first).
 
     ``detail``, when given, receives the intermediate arrays (see :class:`PairDetail`).
     """
@@ -416,7 +497,7 @@ def _pair_rows(
     base = {
         "prev_frame": prev,
         "frame": curr,
-        "dt": frames.dt,
+        "dt": dt,
         "scan_points_prev": int(lane[prev]["n_scan"]),
         "scan_points_curr": int(lane[curr]["n_scan"]),
         "scan_short": bool(lane[curr]["n_scan"] < frames.min_scan_points),
@@ -442,7 +523,7 @@ def _pair_rows(
     if detail is not None:
         detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
                       lead_box=lead_box)  # fmt: skip
-    pair = _PairData(s, frames.dt, prev, curr, obj, lane, owners, xy_prev, xy_curr, selected)
+    pair = _PairData(s, dt, prev, curr, obj, lane, owners, xy_prev, xy_curr, selected)
     rows = []
     for prev_box, curr_box in box_pairs:
         row = dict(base)
