@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from ttc.evaluation.errors import mid_error
 from ttc.evaluation.reference import (
     REFERENCE_CAVEATS,
     lead_points,
@@ -24,49 +25,87 @@ def series(d: np.ndarray) -> pd.DataFrame:
 # --- synthetic distance series ---------------------------------------------------------------
 
 
-def test_decelerating_approach_matches_analytic_ttc_exactly_without_noise():
-    t = np.arange(60) * DT
-    a = 0.05  # m/s², closing speed 0.65 → 0.355 m/s
-    d = 8.0 - 0.65 * t + 0.5 * a * t**2
+def braking(v0: float, a: float, n: int, d0: float = 8.0) -> tuple[np.ndarray, float]:
+    """Distances (m) of a car closing at ``v0`` m/s, braking at ``a`` m/s² to a standstill
+    and then standing, sampled every ``DT``; and the stop instant (s)."""
+    stop = v0 / a
+    t = np.minimum(np.arange(n) * DT, stop)
+    return d0 - v0 * t + 0.5 * a * t**2, stop
+
+
+def two_frame_ttc(d: np.ndarray, dt: float = DT) -> np.ndarray:
+    """What a two-frame constant-velocity estimator outputs from exact distances, per pair."""
+    with np.errstate(divide="ignore"):
+        return np.r_[np.nan, d[1:] * dt / (d[:-1] - d[1:])]
+
+
+@pytest.mark.parametrize(("v0", "a"), [(0.8, 0.25), (0.9, 0.7), (0.6, 0.3)])
+def test_braking_to_a_stop_matches_the_two_frame_estimator_and_finds_the_stop(v0, a):
+    d, stop = braking(v0, a, 60)
     ref = reference_ttc(series(d))
-    analytic = d / (0.65 - a * t)
-    np.testing.assert_allclose(ref["closing_speed_mps"], 0.65 - a * t, rtol=1e-9)
-    np.testing.assert_allclose(ref["ttc_ref_s"], analytic, rtol=1e-9)
-    assert ref["collision_course"].all()
-    assert not ref["distance_interpolated"].any()
+    exact = two_frame_ttc(d)
+    approaching = ref["collision_course"].to_numpy()
+    assert approaching.sum() >= 8
+    np.testing.assert_allclose(ref["ttc_ref_s"][approaching], exact[approaching], rtol=0.005)
+    # the stop: the first standing frame is the first sample at or after the stop instant
+    first_standing = int(np.ceil(stop / DT - 1e-9))
+    stationary = ref.loc[ref["regime"] == "stationary", "frame"]
+    assert abs(int(stationary.min()) - 1 - first_standing) <= 1
+    assert (ref.loc[stationary.index, "ratio_ref"] == 1.0).all()
+    assert np.isposinf(ref.loc[stationary.index, "ttc_ref_s"]).all()
+    assert set(ref["regime"]) == {"approach", "stopping", "stationary"}
 
 
-def test_noisy_approach_within_two_percent_of_analytic_ttc_at_interior_frames():
-    t = np.arange(60) * DT
-    a = 0.02
-    d = 8.0 - 0.65 * t + 0.5 * a * t**2
-    noisy = d + np.random.default_rng(0).normal(0.0, 0.001, len(d))  # 1 mm
+def test_a_perfect_estimator_has_zero_mid_in_every_regime():
+    d, _ = braking(0.8, 0.25, 60)
+    ref = reference_ttc(series(d))
+    mid = mid_error(d[:-1] / d[1:], ref["ratio_ref"].to_numpy()[1:])
+    per_regime = pd.Series(mid).groupby(ref["regime"].to_numpy()[1:]).max()
+    assert set(per_regime.index) == {"approach", "stopping", "stationary"}
+    assert (per_regime < 1e-6).all()
+
+
+def test_noisy_braking_stays_close_with_honest_uncertainty():
+    d, stop = braking(0.8, 0.25, 78)
+    rng = np.random.default_rng(0)
+    noisy = d + rng.normal(0.0, 0.005, len(d))  # 5 mm
     ref = reference_ttc(series(noisy))
-    interior = slice(4, -4)
-    rel = np.abs(ref["ttc_ref_s"].to_numpy() / (d / (0.65 - a * t)) - 1.0)[interior]
-    assert rel.max() < 0.02
+    assert ref["noise_sd_m"].iloc[0] == pytest.approx(0.005, rel=0.3)
+    stationary = ref.loc[ref["regime"] == "stationary", "frame"]
+    # two frames before the stop the car is a/2 (0.2 s)² = 5 mm (one sigma) from standing:
+    # the data cannot place the stop closer than that
+    assert abs(int(stationary.min()) - 1 - int(np.ceil(stop / DT))) <= 2
+    judged = ref["judgeable"].to_numpy()
+    assert judged.sum() >= 10
+    err = np.abs(ref["ttc_ref_s"].to_numpy() / two_frame_ttc(d) - 1.0)[judged]
+    assert np.median(err) < 0.05
+    # the stated uncertainty covers the error on most judged frames (2 sigma)
+    sd = (ref["ttc_ref_sd_s"] / ref["ttc_ref_s"]).to_numpy()[judged]
+    assert np.mean(err <= 2 * sd) >= 0.8
+    assert (ref.loc[~ref["judgeable"] & ref["collision_course"], "ttc_ref_sd_s"] > 0).all()
 
 
-def test_stop_gives_no_collision_course_and_inf():
-    # constant 0.65 m/s until frame 30, then standing still
-    k = np.arange(60)
-    d = 8.0 - 0.065 * np.minimum(k, 30)
-    ref = reference_ttc(series(d)).set_index("frame")
-    # windows (±4 frames) entirely before the stop: exact d / v
-    before = ref.loc[:26]
-    np.testing.assert_allclose(before["ttc_ref_s"], before["distance_m"] / 0.65, rtol=1e-9)
-    assert before["collision_course"].all()
-    # windows entirely after it: zero closing speed
-    after = ref.loc[34:]
-    np.testing.assert_allclose(after["closing_speed_mps"], 0.0, atol=1e-12)
-    assert np.isposinf(after["ttc_ref_s"]).all()
-    assert not after["collision_course"].any()
+def test_steady_approach_has_no_stop():
+    d = 8.0 - 0.065 * np.arange(40)
+    ref = reference_ttc(series(d))
+    assert (ref["regime"] == "approach").all()
+    np.testing.assert_allclose(ref["ttc_ref_s"][1:], two_frame_ttc(d)[1:], rtol=1e-9)
+    np.testing.assert_allclose(ref["closing_speed_mps"][1:], 0.65, rtol=1e-9)
+
+
+def test_real_frame_times_set_each_pairs_dt():
+    d = 8.0 - 0.065 * np.arange(30)
+    times = np.cumsum(np.r_[0.0, np.where(np.arange(29) % 2, 0.1, 0.2)])
+    ref = reference_ttc(series(d), times=times)
+    np.testing.assert_allclose(ref["dt_s"][1:], np.diff(times))
+    # the same distance step over twice the time: twice the TTC
+    np.testing.assert_allclose(ref["ttc_ref_s"][1:], d[1:] * np.diff(times) / 0.065, rtol=1e-9)
 
 
 def test_receding_is_no_collision_course():
     ref = reference_ttc(series(5.0 + 0.05 * np.arange(20)))
-    assert np.isposinf(ref["ttc_ref_s"]).all() and not ref["collision_course"].any()
-    np.testing.assert_allclose(ref["closing_speed_mps"], -0.5, rtol=1e-9)
+    assert np.isposinf(ref["ttc_ref_s"][1:]).all() and not ref["collision_course"].any()
+    np.testing.assert_allclose(ref["closing_speed_mps"][1:], -0.5, rtol=1e-9)
 
 
 def test_nan_in_the_middle_is_interpolated_and_flagged():
@@ -77,7 +116,7 @@ def test_nan_in_the_middle_is_interpolated_and_flagged():
     assert ref["distance_interpolated"].tolist() == [i == 10 for i in range(20)]
     assert np.isnan(ref.loc[10, "distance_m"])
     assert ref.loc[10, "distance_smooth_m"] == pytest.approx(8.0 - 0.65)
-    np.testing.assert_allclose(ref["ttc_ref_s"], d / 0.65, rtol=1e-9)
+    np.testing.assert_allclose(ref["ttc_ref_s"][1:], d[1:] / 0.65, rtol=1e-9)
 
 
 def test_missing_frame_and_trailing_nan_are_filled_and_flagged():
@@ -88,19 +127,20 @@ def test_missing_frame_and_trailing_nan_are_filled_and_flagged():
     assert ref.loc[ref["distance_interpolated"], "frame"].tolist() == [7, 19]
     # held at 6.83 m before smoothing: the fit lands between the hold and the true 6.765 m
     assert d[18] - 0.065 < ref.loc[19, "distance_smooth_m"] < d[18]
-    assert np.isfinite(ref["ttc_ref_s"]).all()
+    assert np.isfinite(ref["ttc_ref_s"][1:]).all()
 
 
 def test_extra_columns_are_kept_and_short_series_shrinks_the_window():
     table = series(8.0 - 0.065 * np.arange(5)).assign(n_points=[300, 301, 302, 303, 304])
     ref = reference_ttc(table, window=9)
     assert ref["n_points"].tolist() == [300, 301, 302, 303, 304]
-    np.testing.assert_allclose(ref["closing_speed_mps"], 0.65, rtol=1e-9)
+    np.testing.assert_allclose(ref["closing_speed_mps"][1:], 0.65, rtol=1e-9)
 
 
 def test_all_nan_gives_nan_reference():
     ref = reference_ttc(series(np.full(10, np.nan)))
     assert ref["ttc_ref_s"].isna().all() and not ref["collision_course"].any()
+    assert not ref["judgeable"].any()
 
 
 # --- rear distance and lead points -----------------------------------------------------------
@@ -173,14 +213,25 @@ def test_real_reference_is_plausible_on_the_rubric_frames(kitti_reference):
     assert ref.loc[1:18, "collision_course"].all()
 
 
-def test_real_reference_has_no_collision_course_from_the_stop_on(kitti_reference):
+def test_real_reference_finds_the_stop_where_the_rear_distance_goes_flat(kitti_reference):
     ref = kitti_reference
-    stopped = ref.index[~ref["collision_course"]]
-    onset = int(stopped.min())
-    assert 52 <= onset <= 56  # cars stationary from about frame 53; measured onset: 54
-    assert (stopped == np.arange(onset, 78)).all()  # stays stopped
-    assert np.isposinf(ref.loc[56:, "ttc_ref_s"]).all()
-    assert np.isfinite(ref.loc[: onset - 1, "ttc_ref_s"]).all()
+    stationary = ref.index[ref["regime"] == "stationary"]
+    first_standing = int(stationary.min()) - 1
+    assert 51 <= first_standing <= 53  # raw rear distance flat from frame 52 (4.404 m)
+    assert (stationary == np.arange(first_standing + 1, 78)).all()  # stays stopped
+    assert (ref.loc[stationary, "ratio_ref"] == 1.0).all()
+    assert np.isposinf(ref.loc[stationary, "ttc_ref_s"]).all()
+    # the smoothing does not lag the stop: no finite reference TTC after it
+    assert not ref.loc[first_standing + 1 :, "collision_course"].any()
+    assert set(ref.loc[45:first_standing, "regime"]) <= {"approach", "stopping"}
+    assert (ref.loc[1:40, "regime"] == "approach").all()
+
+
+def test_real_reference_uncertainty_is_small_while_closing(kitti_reference):
+    ref = kitti_reference
+    assert 0.003 < ref["noise_sd_m"].iloc[0] < 0.02  # about 1 cm of rear-distance noise
+    rel = (ref["ttc_ref_sd_s"] / ref["ttc_ref_s"]).loc[1:40]
+    assert (rel < 0.1).all() and ref.loc[1:40, "judgeable"].all()
 
 
 def test_real_reference_handles_the_truncated_last_scan(kitti_reference):

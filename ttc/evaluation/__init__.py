@@ -7,29 +7,46 @@ submodules are the stages of judging:
 
 - :mod:`~ttc.evaluation.reference`: the lead vehicle's distance from lidar alone, smoothed over
   the recording, and the reference TTC per frame pair;
-- :mod:`~ttc.evaluation.metrics`: per-frame errors against the reference, per-run metrics,
-  the ranking rule and its bootstrap rank intervals, comparison of two sweeps.
+- :mod:`~ttc.evaluation.errors`: per frame pair, each estimate's errors against it (the
+  motion-in-depth error, the relative TTC error, outliers, false alarms, warnings) and time;
+- :mod:`~ttc.evaluation.metrics`: those errors aggregated per run, per sensor and regime;
+- :mod:`~ttc.evaluation.ranking`: the ranking rule;
+- :mod:`~ttc.evaluation.bootstrap`: rank intervals from a moving-block bootstrap;
+- :mod:`~ttc.evaluation.compare`: one setting in two sweeps;
 """
 
-from ttc.evaluation.metrics import (
+from ttc.evaluation.bootstrap import (
+    CI,
+    N_BOOT,
+    block_draws,
+    block_length,
+    bootstrap_rank_intervals,
+    rank_interval,
+    rank_replicates,
+    tied_for_first,
+)
+from ttc.evaluation.compare import COMPARED_METRICS, compare_runs
+from ttc.evaluation.errors import (
     CACHED_STAGE_INPUTS,
-    COMPARED_METRICS,
     FALSE_ALARM_S,
     OUTLIER_REL,
-    RANKING_RULE,
     SENSORS,
+    WARNING_TTC_S,
     attach_reference,
-    bootstrap_rank_intervals,
-    compare_runs,
     frame_errors,
     lead_rows,
-    rank_runs,
-    ranking_time,
-    run_metrics,
+    mid_error,
+    stage_time_columns,
     with_compute_times,
 )
+from ttc.evaluation.metrics import judged_frames, run_metrics
+from ttc.evaluation.ranking import RANKING_KEYS, RANKING_RULE, rank_runs, ranking_time
 from ttc.evaluation.reference import (
+    MAX_REF_REL_SD,
+    MID_SCALE,
     REFERENCE_CAVEATS,
+    REGIMES,
+    find_stop,
     lead_distance_series,
     lead_points,
     rear_distance,
@@ -59,4 +76,20 @@ __all__ = [
     "reference_ttc",
     "run_metrics",
     "with_compute_times",
+    "CI",
+    "N_BOOT",
+    "MAX_REF_REL_SD",
+    "MID_SCALE",
+    "RANKING_KEYS",
+    "REGIMES",
+    "WARNING_TTC_S",
+    "block_draws",
+    "block_length",
+    "find_stop",
+    "judged_frames",
+    "mid_error",
+    "rank_interval",
+    "rank_replicates",
+    "stage_time_columns",
+    "tied_for_first",
 ]

@@ -47,18 +47,39 @@ REAR_BAND = (0.05, 0.30)
 #: Closing speed (m/s) below which the reference says "no collision course" (+inf).
 MIN_CLOSING_SPEED_MPS = 0.1
 
+#: Savitzky–Golay window (frames) and polynomial order of the approach smoothing.
+WINDOW = 9
+POLYORDER = 2
+#: The ``stopping`` regime: the pairs before the stop since the closing speed last was at
+#: least this fraction of the approach's median closing speed.
+STOPPING_SPEED_FRACTION = 0.5
+#: Fewest frames standing still after the stop for a stop to be declared.
+MIN_STOP_FRAMES = 5
+#: Largest relative standard deviation of a finite reference TTC that is still judged: an
+#: estimate is an outlier at 30 % off, so the reference must be known to a third of that.
+MAX_REF_REL_SD = 0.10
+#: Regimes of a frame pair, in the order of the recording.
+REGIMES: tuple[str, ...] = ("approach", "stopping", "stationary")
+#: Scale of the motion-in-depth error: ``MID_SCALE · |ln r̂ − ln r_ref|`` (10⁴: 1 unit is a
+#: 0.01 % error in the distance ratio).
+MID_SCALE = 1e4
+
 REFERENCE_CAVEATS = (
     "The reference TTC comes from the same lidar and the same constant-velocity model as the "
     "estimators it judges: its errors measure an estimator's noise, outliers and invalid "
     "values, not a bias it shares with the reference (a distance offset common to every "
-    "frame, the constant-velocity assumption itself, a lidar calibration error). "
-    "The Savitzky-Golay fit (9 frames = 0.9 s by default) blurs sharp speed changes: around "
-    "the stop it reports a small closing speed for a few frames after the cars halt and "
-    "underestimates it just before, so frames next to the onset of 'no collision course' are "
-    "the least certain. Below the minimum closing speed (0.1 m/s) the reference is +inf by "
-    "definition, so a large but finite estimator TTC there is not an error unless it falls "
-    "under the false-alarm threshold. Frames without a usable lidar distance (frame 77's "
-    "truncated scan) are interpolated and flagged, not measured."
+    "frame, the constant-velocity assumption itself, a lidar calibration error). It is what "
+    "a two-frame constant-velocity estimator would output from the smoothed distances of the "
+    "two frames, so it measures what the estimators measure, also while the cars decelerate. "
+    "The stop is found from the data (a constant deceleration to a standstill fitted to the "
+    "end of the recording), so the smoothing does not lag it; from the stop on the distance "
+    "ratio is exactly 1 and the TTC +inf ('no collision course'). Each frame's reference "
+    "carries a standard deviation from the fit's residual noise; a finite reference TTC known "
+    "to worse than 10 % is not used to judge TTCs (counted as 'too uncertain'), though the "
+    "motion-in-depth error still judges that frame. Below the minimum closing speed (0.1 m/s) "
+    "the reference is +inf by definition, so a large but finite estimator TTC there is not an "
+    "error unless it falls under the false-alarm threshold. Frames without a usable lidar "
+    "distance (frame 77's truncated scan) are interpolated and flagged, not measured."
 )
 
 
@@ -147,27 +168,122 @@ def _window_length(n: int, window: int, polyorder: int) -> int:
     return w if w > polyorder else 0
 
 
+def smoothing_matrix(n: int, window: int = WINDOW, polyorder: int = POLYORDER) -> np.ndarray:
+    """(n, n) matrix ``W`` of the Savitzky–Golay smoothing of ``n`` samples, ``D = W @ d``
+    (``mode="interp"``: the end windows are fitted, not padded); the identity when ``n`` is
+    too short for a fit of ``polyorder``."""
+    w = _window_length(n, window, polyorder)
+    if not w:
+        return np.eye(n)
+    return savgol_filter(np.eye(n), w, polyorder, axis=0)
+
+
+def _smoothing(n: int, stop: int | None, window: int, polyorder: int) -> np.ndarray:
+    """(n, n) linear smoother: Savitzky–Golay on the frames before the first stationary frame
+    ``stop``, the mean of the frames from it on (the standstill); Savitzky–Golay on all when
+    ``stop`` is None."""
+    k = n if stop is None else min(stop, n)
+    W = np.zeros((n, n))
+    W[:k, :k] = smoothing_matrix(k, window, polyorder)
+    if k < n:
+        W[k:, k:] = 1.0 / (n - k)
+    return W
+
+
+def find_stop(
+    distances: np.ndarray,
+    window: int = WINDOW,
+    polyorder: int = POLYORDER,
+    min_frames: int = MIN_STOP_FRAMES,
+) -> int | None:
+    """The first stationary frame (position in ``distances``) of a lead vehicle that comes to
+    a standstill and stays there to the end, or None when it does not.
+
+    ``distances`` (m per frame, NaN: not measured). Each candidate splits the series into an
+    approach, smoothed by Savitzky–Golay, and a standstill, fitted by its mean; "no stop"
+    smooths everything. The candidate with the least Mallows' Cp (residual sum of squares over
+    the measured frames + 2 σ² × the smoother's degrees of freedom, σ from the no-stop fit)
+    wins: a split too early forces decelerating frames onto the standstill (large residuals),
+    one too late spends a smoothing window on a kink and degrees of freedom on noise. Among
+    candidates within ``2 σ²`` (the price of one degree of freedom) of the least Cp, the
+    earliest is taken: the simplest model the data cannot tell from the best (with 1 cm of
+    range noise, a halt is only located to a few frames by the fit alone).
+    Candidates leave at least ``window`` approach and ``min_frames`` standing frames.
+    """
+    d = np.asarray(distances, dtype=float)
+    measured = np.isfinite(d)
+    n = len(d)
+    if measured.sum() < window + min_frames:
+        return None
+    filled = pd.Series(d).interpolate(limit_direction="both").to_numpy()
+
+    def cp(stop: int | None, sigma2: float) -> float:
+        W = _smoothing(n, stop, window, polyorder)
+        rss = float(np.sum(((filled - W @ filled)[measured]) ** 2))
+        return rss + 2.0 * sigma2 * float(np.trace(W[np.ix_(measured, measured)]))
+
+    sigma = noise_sd(filled, _smoothing(n, None, window, polyorder), measured)
+    sigma2 = sigma**2 if np.isfinite(sigma) else 0.0
+    candidates: list[int | None] = [*range(window, n - min_frames + 1), None]
+    scores = np.array([cp(c, sigma2) for c in candidates])
+    return candidates[int(np.argmax(scores <= scores.min() + 2.0 * sigma2))]
+
+
+def noise_sd(raw: np.ndarray, W: np.ndarray, measured: np.ndarray) -> float:
+    """Residual noise (m) of the smoothing ``W`` (n × n) of ``raw`` distances (n,), over the
+    ``measured`` frames (bool, n): ``sqrt(RSS / (m − tr W))`` with the fit's effective
+    degrees of freedom ``tr W`` (NaN when nothing is left to estimate it from)."""
+    resid = (raw - W @ raw)[measured]
+    dof = measured.sum() - np.trace(W[np.ix_(measured, measured)])
+    return float(np.sqrt(np.sum(resid**2) / dof)) if dof > 0.5 else float("nan")
+
+
+def _regimes(speed: np.ndarray, stop: int | None, fraction: float) -> np.ndarray:
+    """Regime of each frame pair (k − 1, k), labelled at frame k (:data:`REGIMES`), from the
+    pairs' mean closing speeds (m/s, NaN for the first frame) and the first stationary frame
+    ``stop``: ``stationary`` once both frames stand still (k − 1 ≥ stop); ``stopping`` for the
+    pairs before it, back to the last one closing at ``fraction`` of the approach's median
+    speed or more; ``approach`` before."""
+    n = len(speed)
+    regime = np.full(n, REGIMES[0], dtype=object)
+    if stop is None:
+        return regime
+    k = np.arange(n)
+    regime[k - 1 >= stop] = "stationary"
+    moving = k <= stop
+    brisk = moving & (speed >= fraction * np.nanmedian(speed[moving]))
+    onset = int(k[brisk].max()) + 1 if brisk.any() else 0
+    regime[moving & (k >= onset)] = "stopping"
+    return regime
+
+
 def reference_ttc(
     distances: pd.DataFrame | pd.Series,
     dt: float = 1.0 / SENSOR_RATE_HZ,
-    window: int = 9,
-    polyorder: int = 2,
+    window: int = WINDOW,
+    polyorder: int = POLYORDER,
     min_closing_speed: float = MIN_CLOSING_SPEED_MPS,
+    times: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """Reference TTC per frame from the lead vehicle's distances (m).
+    """Reference per frame pair (k − 1, k), labelled at frame k, from the lead vehicle's
+    distances (m).
 
     ``distances``: a DataFrame with ``frame`` and ``distance_m`` (other columns are kept), or a
     Series of metres indexed by frame. Missing frames and NaN distances are linearly
-    interpolated (nearest value at the ends) and flagged ``distance_interpolated``. A
-    Savitzky–Golay fit (``window`` frames, ``polyorder``; ``dt`` seconds between frames) gives
-    ``distance_smooth_m`` and ``closing_speed_mps = −d′`` at each frame's own instant;
-    ``ttc_ref_s = distance_smooth_m / closing_speed_mps`` (s) where the closing speed exceeds
-    ``min_closing_speed`` (m/s), else +inf (``collision_course`` False).
+    interpolated (nearest value at the ends) and flagged ``distance_interpolated``. ``times``:
+    seconds per frame of the full range ``min(frame)..max(frame)``; default ``dt`` apart.
 
-    ``min_closing_speed`` = 0.1 m/s: about seven standard deviations of the fitted speed for a
-    ≈ 1 cm distance noise (σ_v ≈ σ_d / (dt·√60) for 9 frames), so a standing car never passes
-    it by chance, while a car closing at 0.1 m/s from 4.4 m is 44 s away: far beyond any
-    warning horizon, so calling it "no collision course" loses nothing.
+    Columns added: ``time_s``, ``dt_s`` (s since the previous frame), ``distance_smooth_m`` and
+    its standard deviation ``distance_sd_m`` (m), ``closing_speed_mps`` (mean over the pair's
+    interval, m/s), ``ratio_ref`` (``D_{k−1} / D_k``), ``ttc_ref_s`` (s; +inf where the closing
+    speed is at most ``min_closing_speed``: "no collision course"), ``collision_course``,
+    ``mid_ref_sd`` (standard deviation of ``MID_SCALE · ln ratio_ref``), ``ttc_ref_sd_s`` (s,
+    finite references), ``judgeable`` (finite reference TTC with relative standard deviation
+    ≤ :data:`MAX_REF_REL_SD`), ``regime`` (:data:`REGIMES`) and ``noise_sd_m`` (the fit's
+    residual noise, one value). Frame ``min(frame)`` has no pair: NaN ratio and TTC.
+
+    ``min_closing_speed`` = 0.1 m/s: a car closing at 0.1 m/s from 4.4 m is 44 s away: far
+    beyond any warning horizon, so calling it "no collision course" loses nothing.
     """
     if isinstance(distances, pd.Series):
         table = distances.rename("distance_m").rename_axis("frame").reset_index()
@@ -176,25 +292,45 @@ def reference_ttc(
     table = table.sort_values("frame").set_index("frame")
     full = np.arange(table.index.min(), table.index.max() + 1) if len(table) else []
     table = table.reindex(pd.Index(full, name="frame"))
+    n = len(table)
+    t = np.arange(n) * dt if times is None else np.asarray(times, dtype=float)
     raw = table["distance_m"].astype(float)
-    filled = raw.interpolate(limit_direction="both")
+    measured = raw.notna().to_numpy()
+    filled = raw.interpolate(limit_direction="both").to_numpy()
 
-    w = _window_length(len(filled), window, polyorder)
-    if w and filled.notna().all():
-        smooth = savgol_filter(filled.to_numpy(), w, polyorder)
-        speed = -savgol_filter(filled.to_numpy(), w, polyorder, deriv=1, delta=dt)
-    else:
-        smooth = speed = np.full(len(filled), np.nan)
-    closing = speed > min_closing_speed
+    stop = find_stop(raw.to_numpy(), window, polyorder)
+    W = _smoothing(n, stop, window, polyorder)
+    smooth = W @ filled if measured.any() else np.full(n, np.nan)
+    sigma = noise_sd(filled, W, measured) if measured.any() else float("nan")
+
+    prev = np.r_[np.nan, smooth[:-1]] if n else smooth
+    step_s = np.r_[np.nan, np.diff(t)] if n else t
     with np.errstate(divide="ignore", invalid="ignore"):
+        speed = (prev - smooth) / step_s
+        ratio = prev / smooth
+        closing = speed > min_closing_speed
         ttc = np.where(closing, smooth / speed, np.where(np.isnan(speed), np.nan, np.inf))
+        grad = np.zeros_like(W)  # d ln(ratio_ref) / d raw distance, per pair
+        grad[1:] = W[:-1] / smooth[:-1, None] - W[1:] / smooth[1:, None]
+        log_ratio_sd = sigma * np.linalg.norm(grad, axis=1)
+        ttc_sd = np.where(np.isfinite(ttc), step_s * ratio / (ratio - 1.0) ** 2, np.nan)
+        ttc_sd = ttc_sd * log_ratio_sd
 
     table["distance_m"] = raw
-    table["distance_interpolated"] = raw.isna().to_numpy()
+    table["distance_interpolated"] = ~measured
+    table["time_s"] = t
+    table["dt_s"] = step_s
     table["distance_smooth_m"] = smooth
+    table["distance_sd_m"] = sigma * np.linalg.norm(W, axis=1)
     table["closing_speed_mps"] = speed
+    table["ratio_ref"] = ratio
     table["ttc_ref_s"] = ttc
     table["collision_course"] = closing
+    table["mid_ref_sd"] = MID_SCALE * np.where(np.isnan(ratio), np.nan, log_ratio_sd)
+    table["ttc_ref_sd_s"] = ttc_sd
+    table["judgeable"] = np.isfinite(ttc) & (ttc_sd <= MAX_REF_REL_SD * ttc)
+    table["regime"] = _regimes(speed, stop, STOPPING_SPEED_FRACTION)
+    table["noise_sd_m"] = sigma
     return table.reset_index()
 
 
@@ -204,15 +340,19 @@ def reference_for_sequence(
     last: int = 77,
     crop: LaneCropParams | None = None,
     dt: float = 1.0 / SENSOR_RATE_HZ,
-    window: int = 9,
-    polyorder: int = 2,
+    window: int = WINDOW,
+    polyorder: int = POLYORDER,
     min_closing_speed: float = MIN_CLOSING_SPEED_MPS,
+    times: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """Reference TTC of a KITTI-raw recording over frames ``first``–``last`` (every frame).
 
     Always computed over the whole sequence at the sensor rate, whatever range or step a sweep
     used, so that the smoothing sees the same data for every sweep; join on ``frame``.
-    Columns: those of :func:`lead_distance_series` and :func:`reference_ttc`.
+    ``times``: seconds of every frame of the recording (index = frame), e.g. from its
+    ``timestamps.txt``; default ``dt`` apart. Columns: those of :func:`lead_distance_series`
+    and :func:`reference_ttc`.
     """
     series = lead_distance_series(sequence_dir, frame_indices(first, last), crop)
-    return reference_ttc(series, dt, window, polyorder, min_closing_speed)
+    span = None if times is None else np.asarray(times, dtype=float)[first : last + 1]
+    return reference_ttc(series, dt, window, polyorder, min_closing_speed, span)

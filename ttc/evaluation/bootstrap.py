@@ -1,0 +1,207 @@
+"""Rank intervals: a paired moving-block bootstrap over the frames of a recording.
+
+Errors of consecutive frames are correlated: a box switch, a bad detection or a stretch of
+integer-pinned keypoints lasts several frames. Resampling single frames treats 77 correlated
+frames as 77 independent ones and gives intervals that are too narrow. A replicate here
+concatenates blocks of ``block_length`` consecutive frames, starting at random positions
+(Künsch's moving-block bootstrap), until it holds as many frames as the recording; the same
+frames are applied to every run (paired), so runs judged on the same hard frames stay
+comparable.
+
+Block length. :func:`block_length` reads it off the errors themselves: Politis & White's
+automatic block length on the mean autocorrelation, over the runs, of each run's per-frame
+error ranks (an invalid estimate is the worst rank), clipped to ``1..n/3`` frames. Errors
+without autocorrelation give 1: the ordinary bootstrap. A fixed integer can be given
+instead.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pandas as pd
+
+from ttc.evaluation.metrics import judged_frames, run_metrics
+from ttc.evaluation.ranking import rank_runs, ranking_time, ranks
+
+#: Replicates, confidence level and seed of the reports' rank intervals.
+N_BOOT = 500
+CI = 0.9
+SEED = 0
+#: Runs whose (runs × replicates × frames) medians are computed at once: bounds the memory.
+CHUNK_RUNS = 256
+
+
+def _error_ranks(mid: np.ndarray, invalid: np.ndarray) -> np.ndarray:
+    """Per run (rows), the rank of each frame's error (columns); invalid frames rank worst."""
+    worst = np.where(invalid, np.inf, np.where(np.isnan(mid), -np.inf, mid))
+    return np.argsort(np.argsort(worst, axis=1, kind="stable"), axis=1).astype(float)
+
+
+def mean_autocorrelation(mid: np.ndarray, invalid: np.ndarray, max_lag: int) -> np.ndarray:
+    """Autocorrelation (lags 0..max_lag) of each run's per-frame error ranks, averaged over
+    the runs whose errors vary: ``mid`` (runs × frames, NaN: none), ``invalid`` (bool, the
+    worst rank)."""
+    x = _error_ranks(mid, invalid)
+    x = x - x.mean(axis=1, keepdims=True)
+    var = np.sum(x**2, axis=1)
+    x, var = x[var > 0], var[var > 0]
+    if not len(x):
+        return np.r_[1.0, np.zeros(max_lag)]
+    lags = range(1, max_lag + 1)
+    return np.r_[1.0, [np.mean(np.sum(x[:, k:] * x[:, :-k], axis=1) / var) for k in lags]]
+
+
+def block_length(mid: np.ndarray, invalid: np.ndarray) -> int:
+    """Moving-block length (frames) for errors ``mid`` (runs × frames, NaN: none) with
+    ``invalid`` (runs × frames, bool): Politis & White's (2004) automatic choice, with
+    Patton, Politis & White's (2009) constant for the moving-block bootstrap, applied to the
+    runs' mean autocorrelation (:func:`mean_autocorrelation`); clipped to ``1..n // 3``.
+
+    The autocorrelation is cut where it falls inside ±2/√n (lag ``m``) and tapered by the
+    flat-top kernel over ``2m`` lags; ``L = (2 G² / D)^{1/3} n^{1/3}`` with
+    ``G = Σ λ(k/2m) |k| ρ(k)`` and ``D = 4/3 (Σ λ(k/2m) ρ(k))²``. (The ``arch`` package has the
+    same estimator, but would bring statsmodels along for fifteen lines.)
+    """
+    n = mid.shape[1]
+    if n < 4:
+        return 1
+    rho = mean_autocorrelation(mid, invalid, n // 3)
+    inside = np.nonzero(np.abs(rho[1:]) < 2.0 / np.sqrt(n))[0]
+    m = int(inside[0]) + 1 if len(inside) else n // 3
+    k = np.arange(1, min(2 * m, n // 3) + 1)
+    taper = np.clip(2.0 * (1.0 - k / (2 * m)), 0.0, 1.0)
+    g = 2.0 * np.sum(taper * k * rho[k])
+    d = 4.0 / 3.0 * (1.0 + 2.0 * np.sum(taper * rho[k])) ** 2
+    length = (2.0 * g**2 / d) ** (1.0 / 3.0) * n ** (1.0 / 3.0) if d > 0 else 1.0
+    return int(np.clip(np.ceil(length), 1, n // 3))
+
+
+def block_draws(n: int, n_boot: int, length: int, rng: np.random.Generator) -> np.ndarray:
+    """Frame positions (n_boot × n) of moving-block replicates: blocks of ``length``
+    consecutive positions from uniformly drawn starts, concatenated and cut to ``n``.
+    ``length`` 1 is the ordinary (independent) bootstrap."""
+    length = int(np.clip(length, 1, n))
+    blocks = -(-n // length)
+    starts = rng.integers(0, n - length + 1, size=(n_boot, blocks))
+    draws = starts[:, :, None] + np.arange(length)
+    return draws.reshape(n_boot, -1)[:, :n]
+
+
+def _nanmedian_last(values: np.ndarray) -> np.ndarray:
+    """Median over the last axis ignoring NaN (NaN when all are NaN), via one sort."""
+    ordered = np.sort(values, axis=-1)  # NaN last
+    n = np.count_nonzero(~np.isnan(values), axis=-1)
+    lo = np.take_along_axis(ordered, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
+    hi = np.take_along_axis(ordered, (n // 2)[..., None], axis=-1)[..., 0]
+    return np.where(n > 0, (lo + hi) / 2, np.nan)
+
+
+def replicate_medians(values: np.ndarray, draws: np.ndarray) -> np.ndarray:
+    """Median of ``values`` (runs × frames, NaN ignored) over each replicate's frames
+    (``draws``, replicates × n): replicates × runs, computed in chunks of runs."""
+    out = np.empty((draws.shape[0], values.shape[0]))
+    for start in range(0, values.shape[0], CHUNK_RUNS):
+        part = values[start : start + CHUNK_RUNS]
+        out[:, start : start + CHUNK_RUNS] = _nanmedian_last(part[:, draws]).T
+    return out
+
+
+def replicate_means(values: np.ndarray, draws: np.ndarray) -> np.ndarray:
+    """Mean of ``values`` (runs × frames, NaN: not applicable) over each replicate's frames
+    (``draws``, replicates × n): replicates × runs, NaN where nothing applies."""
+    weights = np.zeros((draws.shape[0], values.shape[1]))
+    np.add.at(weights, (np.arange(draws.shape[0])[:, None], draws), 1.0)
+    present = ~np.isnan(values)
+    total = weights @ np.where(present, values, 0.0).T
+    count = weights @ present.T.astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(count > 0, total / count, np.nan)
+
+
+def replicate_metrics(
+    invalid: np.ndarray, mid: np.ndarray, ms: np.ndarray, draws: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The ranking rule's keys (replicates × runs) on each replicate's frames (``draws``):
+    ``invalid_rate``, ``mid_median`` and ``ms`` (mean time) from per-frame ``invalid``
+    (bool), ``mid`` and ``ms`` (runs × frames)."""
+    return {
+        "invalid_rate": replicate_means(invalid.astype(float), draws),
+        "mid_median": replicate_medians(np.where(invalid, np.nan, mid), draws),
+        "ms": replicate_means(ms, draws),
+    }
+
+
+def rank_replicates(
+    invalid: np.ndarray, mid: np.ndarray, ms: np.ndarray, draws: np.ndarray
+) -> np.ndarray:
+    """Ranks (replicates × runs) by :data:`~ttc.evaluation.ranking.RANKING_RULE` on each
+    replicate's frames (:func:`replicate_metrics`)."""
+    keys = replicate_metrics(invalid, mid, ms, draws)
+    return ranks(keys["invalid_rate"], keys["mid_median"], keys["ms"])
+
+
+def rank_interval(replicate_ranks: np.ndarray, ci: float = CI) -> tuple[np.ndarray, np.ndarray]:
+    """The ``ci`` percentile interval (lower, higher order statistic) of each run's rank
+    over the replicates (replicates × runs)."""
+    q = (1.0 - ci) / 2.0
+    return (
+        np.quantile(replicate_ranks, q, axis=0, method="lower"),
+        np.quantile(replicate_ranks, 1.0 - q, axis=0, method="higher"),
+    )
+
+
+def bootstrap_rank_intervals(
+    frames: pd.DataFrame,
+    reference: pd.DataFrame,
+    n_boot: int = N_BOOT,
+    seed: int = SEED,
+    sensor: str = "camera",
+    ci: float = CI,
+    block: int | str = "auto",
+    **thresholds: float,
+) -> pd.DataFrame:
+    """Paired moving-block bootstrap over frames of each run's rank and ranking metrics.
+
+    Returns per ``run_id``: the point ``rank``, ``rank_lo`` / ``rank_hi`` (the ``ci``
+    interval), ``rank_median``, ``block_length`` (frames; ``block="auto"``:
+    :func:`block_length`, or the integer given), and the ``ci`` interval (``_lo`` / ``_hi``)
+    of ``{sensor}_invalid_rate``, ``{sensor}_mid_median``, ``{sensor}_outlier_rate`` and
+    ``{sensor}_medae_rel``. ``thresholds`` go to :func:`~ttc.evaluation.metrics.run_metrics`
+    (``outlier_rel``, ``false_alarm_s``, ``warning_s``). Deterministic for a ``seed``.
+    """
+    t = judged_frames(frames, reference, **thresholds)
+    t["ms_rank"] = ranking_time(t)
+    t[f"{sensor}_approach_rel_err"] = t[f"{sensor}_rel_err"].where(t["regime"] == "approach")
+
+    def matrix(col: str) -> np.ndarray:
+        return t.pivot(index="run_id", columns="frame", values=col).to_numpy(float)
+
+    runs = np.sort(t["run_id"].unique())
+    invalid = matrix(f"{sensor}_invalid") > 0.5
+    mid, ms = matrix(f"{sensor}_mid"), matrix("ms_rank")
+    length = block_length(mid, invalid) if block == "auto" else int(block)
+    draws = block_draws(mid.shape[1], n_boot, length, np.random.default_rng(seed))
+    values = replicate_metrics(invalid, mid, ms, draws)
+    replicate_ranks = ranks(values["invalid_rate"], values["mid_median"], values.pop("ms"))
+    values["outlier_rate"] = replicate_means(matrix(f"{sensor}_outlier"), draws)
+    values["medae_rel"] = replicate_medians(matrix(f"{sensor}_approach_rel_err"), draws)
+
+    point = rank_runs(run_metrics(frames, reference, **thresholds), sensor)
+    out = pd.DataFrame({"run_id": runs}).merge(point[["run_id", "rank"]], on="run_id")
+    out["rank_lo"], out["rank_hi"] = rank_interval(replicate_ranks, ci)
+    out["rank_median"] = np.median(replicate_ranks, axis=0)
+    out["block_length"] = length
+    q = [(1.0 - ci) / 2.0, 1.0 - (1.0 - ci) / 2.0]
+    for name, v in values.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN runs give NaN
+            out[f"{sensor}_{name}_lo"] = np.nanquantile(v, q[0], axis=0, method="lower")
+            out[f"{sensor}_{name}_hi"] = np.nanquantile(v, q[1], axis=0, method="higher")
+    return out
+
+
+def tied_for_first(intervals: pd.DataFrame) -> int:
+    """How many settings cannot be told from the best: their rank interval includes 1."""
+    return int((intervals["rank_lo"] <= 1).sum())

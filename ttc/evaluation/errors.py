@@ -1,0 +1,227 @@
+"""Per-frame errors of every estimate against the reference, and the time a frame cost.
+
+Input is a sweep's ``frames`` table (one row per run × frame pair × box pair, see
+``experiments/schema.py``) and a reference from :func:`ttc.evaluation.reference.reference_ttc`
+(one row per frame pair, labelled at its current frame). Only the lead vehicle's row of each
+frame pair is judged; a frame pair of a run without a lead row (no box held lane points)
+counts as an invalid estimate of both sensors.
+
+Per frame pair, for sensor ``s`` in :data:`SENSORS`:
+
+- ``{s}_ratio``: the distance ratio ``r̂ = d(t_prev) / d(t_curr)`` the estimate rests on
+  (lidar: ``d_prev / d_curr``, the distances the estimator chose; camera: ``camera_ratio``,
+  the scale change of the keypoint pattern); ``{s}_invalid`` where it is not a positive
+  number (the estimator gave none);
+- ``{s}_mid``: motion-in-depth error ``MID_SCALE · |ln r̂ − ln r_ref|`` (10⁴ × the log-ratio
+  error). Defined on every frame with a valid estimate, the stationary ones included
+  (``r_ref = 1``), where a relative TTC error is not;
+- ``{s}_rel_err``: ``|ttc − ref| / ref`` where the reference TTC is finite and ``judgeable``
+  (known to within :data:`ttc.evaluation.reference.MAX_REF_REL_SD`) and the TTC is finite;
+- ``{s}_outlier``: on those judgeable frames, the TTC is invalid (NaN, ±inf or ≤ 0) or more
+  than ``outlier_rel`` off;
+- ``{s}_false_alarm``: where the reference is +inf (no collision course), a finite TTC in
+  ``(0, false_alarm_s)``;
+- ``{s}_warns``: the estimate warns, ``0 < ttc < warning_s``; ``ref_warns``: the reference
+  does (collision-warning precision and recall, :mod:`ttc.evaluation.metrics`).
+
+Time: ``ms_per_frame`` is the sum of the lead row's stage times (:func:`stage_time_columns`,
+ms). Stages that came from the stage cache count their cache-load time, so it is the time
+this run took, which depends on what ran before it. ``ms_compute_per_frame`` replaces a
+cached stage's time by the median time of the same stage computed (not cached) on the same
+frame by any run of the table with the same stage inputs (:data:`CACHED_STAGE_INPUTS`);
+NaN when no run of the table computed it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ttc.evaluation.reference import MAX_REF_REL_SD, MID_SCALE, MIN_CLOSING_SPEED_MPS
+
+SENSORS: tuple[str, ...] = ("camera", "lidar")
+#: Relative error above which a TTC is an outlier.
+OUTLIER_REL = 0.3
+#: A finite TTC below this (s) where the reference says "no collision course" is a false
+#: alarm. 10 s: while the cars of the KITTI sequence close, the reference is 6–15 s, so an
+#: estimate under 10 s where they stand claims an approach as urgent as the real one.
+FALSE_ALARM_S = 10.0
+#: Collision-warning threshold τ (s): "TTC below τ" is a warning.
+WARNING_TTC_S = 8.0
+#: Time columns derived from the stage times, never summed into them.
+DERIVED_TIME_COLUMNS: tuple[str, ...] = ("ms_per_frame", "ms_compute_per_frame")
+#: Reference columns joined onto each judged row.
+REFERENCE_COLUMNS: tuple[str, ...] = (
+    "ttc_ref_s",
+    "collision_course",
+    "ratio_ref",
+    "mid_ref_sd",
+    "ttc_ref_sd_s",
+    "judgeable",
+    "regime",
+)
+
+#: Cached stage → (time column, cache flag column, axes its cache key depends on besides the
+#: frame). The lidar stage (scan load + lane crop) costs the same for every setting.
+CACHED_STAGE_INPUTS: dict[str, tuple[str, str, tuple[str, ...]]] = {
+    "objects": ("ms_objects", "cached_objects", ("objects",)),
+    "lidar": ("ms_lidar", "cached_lidar", ()),
+    "keypoints": ("ms_keypoints", "cached_keypoints", ("detector",)),
+    "descriptors": ("ms_descriptors", "cached_descriptors", ("detector", "descriptor")),
+    "matches": ("ms_matching", "cached_matches", ("detector", "descriptor", "matcher")),
+}
+
+
+def stage_time_columns(frames: pd.DataFrame) -> list[str]:
+    """The per-stage time columns (``ms_*``, ms) of ``frames``: not the derived totals."""
+    return [c for c in frames.columns if c.startswith("ms_") and c not in DERIVED_TIME_COLUMNS]
+
+
+def lead_rows(frames: pd.DataFrame) -> pd.DataFrame:
+    """One row per (run_id, frame): the lead row, else the pair's first row with its estimates
+    blanked (NaN TTCs and ratios: the run has no estimate of the lead vehicle there)."""
+    order = frames.sort_values(
+        ["run_id", "frame", "is_lead"], ascending=[True, True, False], kind="stable"
+    )
+    lead = order.drop_duplicates(["run_id", "frame"]).reset_index(drop=True)
+    blanked = ["ttc_camera", "ttc_lidar", "camera_ratio", "d_prev", "d_curr"]
+    lead.loc[~lead["is_lead"].astype(bool), [c for c in blanked if c in lead]] = np.nan
+    return lead
+
+
+def _pair_reference(table: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
+    """The reference of each row's own frame pair (``prev_frame``, ``frame``) when it is not
+    (frame − 1, frame), e.g. a sweep with ``dataset.step`` > 1: ratio and TTC from the
+    smoothed distances of the two frames; ``mid_ref_sd`` bounded by the sum of the two
+    distances' relative standard deviations (it holds whatever their correlation)."""
+    ref = reference.set_index("frame")
+    prev, curr = table["prev_frame"].to_numpy(), table["frame"].to_numpy()
+    d_prev = ref["distance_smooth_m"].reindex(prev).to_numpy()
+    d_curr = ref["distance_smooth_m"].reindex(curr).to_numpy()
+    dt = table["dt"].to_numpy(dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = d_prev / d_curr
+        speed = (d_prev - d_curr) / dt
+        closing = speed > MIN_CLOSING_SPEED_MPS
+        ttc = np.where(closing, d_curr / speed, np.where(np.isnan(speed), np.nan, np.inf))
+        rel_sd = (
+            ref["distance_sd_m"].reindex(prev).to_numpy() / d_prev
+            + ref["distance_sd_m"].reindex(curr).to_numpy() / d_curr
+        )
+        ttc_sd = np.where(np.isfinite(ttc), dt * ratio / (ratio - 1.0) ** 2 * rel_sd, np.nan)
+    standing = ratio == 1.0
+    return pd.DataFrame(
+        {
+            "ttc_ref_s": ttc,
+            "collision_course": closing & np.isfinite(ttc),
+            "ratio_ref": ratio,
+            "mid_ref_sd": MID_SCALE * rel_sd,
+            "ttc_ref_sd_s": ttc_sd,
+            "judgeable": np.isfinite(ttc) & (ttc_sd <= MAX_REF_REL_SD * ttc),
+            "regime": np.where(standing, "stationary", table["regime"].to_numpy()),
+        },
+        index=table.index,
+    )
+
+
+def attach_reference(
+    frames: pd.DataFrame, reference: pd.DataFrame, lead_only: bool = True
+) -> pd.DataFrame:
+    """``frames`` with the reference's :data:`REFERENCE_COLUMNS` of each row's frame pair;
+    by default only the lead rows (:func:`lead_rows`). Frames the reference does not cover get
+    NaN, ``collision_course`` and ``judgeable`` False and an empty ``regime``."""
+    table = lead_rows(frames) if lead_only else frames
+    table = table.drop(columns=list(REFERENCE_COLUMNS), errors="ignore")
+    cols = [c for c in REFERENCE_COLUMNS if c in reference]
+    out = table.merge(reference[["frame", *cols]], on="frame", how="left", validate="many_to_one")
+    if "prev_frame" in out and "distance_smooth_m" in reference:
+        other = out["prev_frame"] != out["frame"] - 1
+        if other.any():
+            out.loc[other, cols] = _pair_reference(out[other], reference)[cols]
+    for flag in ("collision_course", "judgeable"):
+        if flag in out:
+            out[flag] = out[flag].fillna(False).astype(bool)
+    if "regime" in out:
+        out["regime"] = out["regime"].fillna("")
+    return out
+
+
+def estimated_ratio(table: pd.DataFrame, sensor: str) -> np.ndarray:
+    """The distance ratio ``d_prev / d_curr`` (n,) an estimate of ``sensor`` rests on."""
+    if sensor == "camera":
+        return table["camera_ratio"].to_numpy(dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return table["d_prev"].to_numpy(dtype=float) / table["d_curr"].to_numpy(dtype=float)
+
+
+def mid_error(ratio: np.ndarray, ratio_ref: np.ndarray) -> np.ndarray:
+    """Motion-in-depth error ``MID_SCALE · |ln r̂ − ln r_ref|`` (n,); NaN where either ratio
+    is not a positive number."""
+    r, ref = np.asarray(ratio, dtype=float), np.asarray(ratio_ref, dtype=float)
+    valid = np.isfinite(r) & (r > 0) & np.isfinite(ref) & (ref > 0)
+    out = np.full(r.shape, np.nan)
+    out[valid] = MID_SCALE * np.abs(np.log(r[valid]) - np.log(ref[valid]))
+    return out
+
+
+def _compute_times(lead: pd.DataFrame) -> pd.Series:
+    """Per-row ``ms_per_frame`` with cached stages' times replaced by computed ones (ms): the
+    median computing time of the same stage inputs on the same frame, else on any frame."""
+    if "ms_compute_per_frame" in lead:  # looked up beforehand (:func:`with_compute_times`)
+        return lead["ms_compute_per_frame"]
+    total = lead[stage_time_columns(lead)].sum(axis=1)
+    for ms, flag, inputs in CACHED_STAGE_INPUTS.values():
+        if ms not in lead or flag not in lead:
+            continue
+        cached = lead[flag].astype(bool)
+        own = lead[ms].where(~cached)
+        stage = [lead[c] for c in inputs if c in lead]
+        same_frame = own.groupby([*stage, lead["frame"]]).transform("median")
+        any_frame = own.groupby(stage).transform("median") if stage else own.median()
+        computed = same_frame.fillna(any_frame)
+        total = total + (computed - lead[ms]).where(cached, 0.0)
+    return total
+
+
+def with_compute_times(frames: pd.DataFrame) -> pd.DataFrame:
+    """``frames`` with ``ms_compute_per_frame`` per row, the cached stages' computing times
+    looked up over every row of ``frames``. Call it on the union of sweeps before judging a
+    subset of runs, so a stage computed by a run outside the subset still has its time."""
+    return frames.assign(ms_compute_per_frame=_compute_times(frames))
+
+
+def frame_errors(
+    lead: pd.DataFrame,
+    outlier_rel: float = OUTLIER_REL,
+    false_alarm_s: float = FALSE_ALARM_S,
+    warning_s: float = WARNING_TTC_S,
+) -> pd.DataFrame:
+    """Per lead row (from :func:`attach_reference`), for each sensor ``s``: ``{s}_ratio``,
+    ``{s}_invalid`` (bool), ``{s}_mid``, ``{s}_rel_err``, ``{s}_outlier`` and
+    ``{s}_false_alarm`` (1.0/0.0, NaN where not applicable), ``{s}_warns`` (bool); and
+    ``ref_warns``, ``ms_per_frame``, ``ms_compute_per_frame`` (ms). Definitions in the module
+    docstring; ``outlier_rel`` a fraction, ``false_alarm_s`` and ``warning_s`` seconds."""
+    out = lead.copy()
+    ref = out["ttc_ref_s"].to_numpy(dtype=float)
+    judged = out["judgeable"].to_numpy(dtype=bool) & np.isfinite(ref) & (ref > 0)
+    no_course = np.isposinf(ref)
+    out["ref_warns"] = np.isfinite(ref) & (ref > 0) & (ref < warning_s)
+    for s in SENSORS:
+        ratio = estimated_ratio(out, s)
+        ttc = out[f"ttc_{s}"].to_numpy(dtype=float)
+        finite = np.isfinite(ttc)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.abs(ttc - ref) / ref
+        rel = np.where(judged & finite, rel, np.nan)
+        outlier = ~(finite & (ttc > 0)) | (rel > outlier_rel)
+        warns = finite & (ttc > 0)
+        out[f"{s}_ratio"] = ratio
+        out[f"{s}_invalid"] = ~(np.isfinite(ratio) & (ratio > 0))
+        out[f"{s}_mid"] = mid_error(ratio, out["ratio_ref"].to_numpy(dtype=float))
+        out[f"{s}_rel_err"] = rel
+        out[f"{s}_outlier"] = np.where(judged, outlier, np.nan)
+        out[f"{s}_false_alarm"] = np.where(no_course, warns & (ttc < false_alarm_s), np.nan)
+        out[f"{s}_warns"] = warns & (ttc < warning_s)
+    out["ms_per_frame"] = out[stage_time_columns(lead)].sum(axis=1)
+    out["ms_compute_per_frame"] = _compute_times(lead)
+    return out
