@@ -14,7 +14,7 @@ import pandas as pd
 from experiments.paths import default_cache_dir, default_data_root
 from ttc.cache import StageCache, Task, cache_key
 from ttc.evaluation import reference as reference_module
-from ttc.frames import LIDAR_DIR, file_identity, frame_files
+from ttc.frames import LIDAR_DIR, file_identity, frame_files, read_frame_times
 
 #: Bump to invalidate every cached reference (the key also holds ttc/evaluation/reference.py's source).
 REFERENCE_CACHE_VERSION = 1
@@ -28,25 +28,33 @@ def sequence_of(runs: pd.DataFrame) -> str:
     return sequences[0]
 
 
-def _reference_key(sequence_dir: Path, last: int) -> str:
+def _reference_key(sequence_dir: Path, last: int, times: np.ndarray | None) -> str:
     scans = [file_identity(frame_files(sequence_dir, i).scan) for i in range(last + 1)]
     source = hashlib.sha256(inspect.getsource(reference_module).encode()).hexdigest()
-    return cache_key("reference", REFERENCE_CACHE_VERSION, source, scans)
+    clock = None if times is None else hashlib.sha256(times.tobytes()).hexdigest()
+    return cache_key("reference", REFERENCE_CACHE_VERSION, source, scans, clock)
 
 
 def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
-    """Reference TTC over every frame of the recording (:func:`reference_for_sequence`),
-    kept in the stage cache (key: the scans' identities and ``ttc/evaluation/reference.py``'s source)."""
+    """Reference TTC over every frame of the recording (:func:`reference_for_sequence`), at
+    the recording's real frame times when it ships a ``timestamps.txt``
+    (:func:`ttc.frames.read_frame_times`), kept in the stage cache (key: the scans'
+    identities, the frame times and ``ttc/evaluation/reference.py``'s source)."""
     last = len(list((Path(sequence_dir) / LIDAR_DIR).glob("*.bin"))) - 1
     if last < 1:
         raise FileNotFoundError(f"no lidar scans under {Path(sequence_dir) / LIDAR_DIR}")
+    times = read_frame_times(sequence_dir)
 
     def compute() -> dict[str, np.ndarray]:
-        ref = reference_module.reference_for_sequence(sequence_dir, 0, last)
-        return {c: ref[c].to_numpy() for c in ref.columns}
+        ref = reference_module.reference_for_sequence(sequence_dir, 0, last, times=times)
+        # text columns as fixed-width strings: cache entries hold no pickled objects
+        return {
+            c: ref[c].to_numpy().astype(str) if ref[c].dtype == object else ref[c].to_numpy()
+            for c in ref.columns
+        }
 
-    arrays = cache.get(Task("reference", _reference_key(Path(sequence_dir), last), compute))
-    return pd.DataFrame(arrays.arrays)
+    key = _reference_key(Path(sequence_dir), last, times)
+    return pd.DataFrame(cache.get(Task("reference", key, compute)).arrays)
 
 
 def runs_reference(
