@@ -1,4 +1,11 @@
-"""Hydra callbacks of a sweep: a progress bar with time left, and the merge at the end."""
+"""Hydra callbacks of a sweep: a progress bar with time left, the merge and the exit status at
+the end, and a record for a job whose process died.
+
+Following Hydra's convention for partial failures (hydra#1465: every job of the batch runs,
+then the multirun reports that some failed), a sweep runs every setting, prints the failures
+in its summary and then exits with status 1 when a setting of this invocation failed or the
+merge failed. ``skipped`` (an invalid detector × descriptor pair) is not a failure.
+"""
 
 from __future__ import annotations
 
@@ -10,11 +17,15 @@ from typing import Any
 
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.utils import JobReturn, JobStatus
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-PROGRESS_DIR = ".progress"
+from experiments.collect import summarise_sweep
+from experiments.config import data_root
+from experiments.run import record_crash
+from experiments.store import PROGRESS_DIR, StoreError
 
 
 def count_jobs(config: DictConfig) -> int | None:
@@ -81,16 +92,32 @@ class SweepCallback(Callback):
                 if stopping:
                     return
 
-    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        from experiments.collect import summarise_sweep  # noqa: PLC0415 (import cycle)
+    def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
+        """Record a job that did not return (its exception escaped, or its worker process
+        died: the launcher reports that) as ``failed`` with the reason."""
+        if job_return.status != JobStatus.FAILED:
+            return
+        error = job_return._return_value
+        message = f"{type(error).__name__}: {error}" if error is not None else "job failed"
+        record_crash(config, Path(config.hydra.sweep.dir), message)
 
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        """Merge and summarise the sweep; exit 1 when a setting or the merge failed."""
         if _PROGRESS:
             _PROGRESS.pop("stop").set()
             _PROGRESS.pop("thread").join(timeout=10)
-        from experiments.config import data_root  # noqa: PLC0415
-
-        summarise_sweep(
-            Path(config.hydra.sweep.dir),
-            data_dir=data_root(config),
-            cache_dir=Path(str(config.cache.dir)),
-        )
+        sweep_dir = Path(config.hydra.sweep.dir)
+        problems = []
+        try:
+            summarise_sweep(
+                sweep_dir, data_dir=data_root(config), cache_dir=Path(str(config.cache.dir))
+            )
+        except (StoreError, OSError) as exc:
+            problems.append(f"merge failed, no {sweep_dir}/frames.parquet: {exc}")
+        progress = sweep_dir / PROGRESS_DIR
+        outcomes = [p.read_text() for p in progress.iterdir()] if progress.is_dir() else []
+        if (failed := outcomes.count("failed")) > 0:
+            problems.append(f"{failed} setting(s) failed (listed above); a re-run retries them")
+        if problems:
+            sys.stdout.flush()
+            sys.exit("sweep incomplete: " + "; ".join(problems))

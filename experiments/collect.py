@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 
 from experiments import store
-from experiments.callbacks import PROGRESS_DIR
 from experiments.reference_store import runs_reference
+from experiments.store import PROGRESS_DIR
 from ttc.evaluation import metrics
 from ttc.pipeline import SETTING_AXES
 
@@ -64,10 +64,11 @@ def summarise_sweep(
     data_dir: Path | None = None,
     cache_dir: Path | None = None,
 ) -> pd.DataFrame:
-    """Collect the sweep, print where the dataset is, the run counts and the best settings:
-    ranked against the reference TTC (:mod:`ttc.evaluation.metrics`), or by the interim camera-vs-lidar
-    score when no reference can be built. ``data_dir`` / ``cache_dir``: None for the
-    configured defaults."""
+    """Collect the sweep (:class:`store.StoreError` naming a corrupt rows file), print where
+    the dataset is, the run counts, the failures and the best settings: ranked against the
+    reference TTC (:mod:`ttc.evaluation`), or by the interim camera-vs-lidar score when no
+    reference can be built (a ranking that raises is reported in one line: the merged data
+    stands). ``data_dir`` / ``cache_dir``: None for the configured defaults."""
     frames, runs = store.collect(sweep_dir)
     counts = runs["status"].value_counts() if not runs.empty else pd.Series(dtype=int)
     print(f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({len(frames)} rows)")
@@ -85,15 +86,17 @@ def summarise_sweep(
         )
     for _, run in runs[runs["status"] == "failed"].iterrows() if not runs.empty else []:
         print(f"  failed {run['run_id']}: {run['message']}")
+    if "n_frame_errors" in runs:
+        for _, run in runs[runs["n_frame_errors"].fillna(0) > 0].iterrows():
+            print(f"  frame errors in {run['run_id']} (retried when the input changes): "
+                  f"{run['message']}")  # fmt: skip
     if frames.empty:
         return pd.DataFrame()
-    reference = sweep_reference(runs, data_dir, cache_dir)
-    if reference is None:
-        scores = interim_scores(frames)
-        title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
-    else:
-        scores = ranked_runs(frames, reference)
-        title = "on the camera TTC against the reference (ttc.evaluation.metrics.RANKING_RULE)"
+    try:
+        scores, title = _best(frames, runs, data_dir, cache_dir)
+    except Exception as exc:  # the merge stands; the ranking is the report's job
+        print(f"\n(no ranking: {type(exc).__name__}: {exc})")
+        return pd.DataFrame()
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(f"\nbest {top} settings {title}:")
         print(scores.head(top).to_string(index=False, float_format="%.3g"))
@@ -103,6 +106,16 @@ def summarise_sweep(
     return scores
 
 
+def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> tuple:
+    """(ranked settings, title): against the reference, else by the interim score."""
+    reference = sweep_reference(runs, data_dir, cache_dir)
+    if reference is None:
+        title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
+        return interim_scores(frames), title
+    title = "on the camera TTC against the reference (ttc.evaluation.metrics.RANKING_RULE)"
+    return ranked_runs(frames, reference), title
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sweep_dir", type=Path, help="the sweep folder (hydra.sweep.dir)")
@@ -110,7 +123,10 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if not (args.sweep_dir / store.RUNS_DIR).is_dir():
         parser.error(f"{args.sweep_dir} has no {store.RUNS_DIR}/ folder: not a sweep folder")
-    summarise_sweep(args.sweep_dir, args.top)
+    try:
+        summarise_sweep(args.sweep_dir, args.top)
+    except store.StoreError as exc:
+        parser.exit(1, f"merge failed: {exc}\n(re-run the sweep to recompute that run)\n")
 
 
 if __name__ == "__main__":

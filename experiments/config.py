@@ -22,6 +22,7 @@ from experiments import paths
 from ttc.box_matching import BoxMatchingParams
 from ttc.camera_ttc import CameraTTCParams
 from ttc.descriptors import DESCRIPTORS
+from ttc.frames import PROJECTIONS, recording_frames
 from ttc.keypoint_filter import KeypointFilterParams
 from ttc.keypoints import DETECTORS
 from ttc.lidar import LaneCropParams
@@ -184,3 +185,64 @@ def setting_hash(setting: dict[str, Any]) -> str:
 def run_id(cfg: DictConfig) -> str:
     """Hash of :func:`setting_config`: equal configs give equal ids, across machines."""
     return setting_hash(setting_config(cfg))
+
+
+def missing_data_message(cfg: DictConfig) -> str:
+    """What to say when the configured recording folder does not exist."""
+    sequence_dir = data_root(cfg) / cfg.dataset.sequence
+    return (
+        f"KITTI frames not found: {sequence_dir} does not exist.\n"
+        "Point TTC_DATA_DIR (or dataset.root=...) at a folder holding "
+        f"{cfg.dataset.sequence}/, or fetch the 78 frames with:\n"
+        f"  python -m experiments.download --data-root {data_root(cfg)}"
+    )
+
+
+def config_problems(cfg: DictConfig) -> list[str]:
+    """What is wrong with a composed config's values, in words (empty: nothing).
+
+    Checks what key and type validation cannot: every stage's parameter ranges (the core
+    dataclasses' own checks), the frame range (``first >= 0``, ``step >= 1``, at least two
+    frames), and that the recording exists and holds the range's last frame.
+    """
+    problems = []
+    try:
+        settings_from_config(cfg)
+    except (ValueError, TypeError) as exc:
+        problems.append(str(exc))
+    ds = cfg.dataset
+    first, last, step = int(ds.first), int(ds.last), int(ds.step)
+    if first < 0:
+        problems.append(f"dataset.first={first} must be >= 0")
+    if step < 1:
+        problems.append(f"dataset.step={step} must be >= 1")
+    elif last < first + step:
+        problems.append(
+            f"dataset.last={last} must be >= dataset.first + dataset.step = {first + step} "
+            "(a frame range needs at least two frames)"
+        )
+    if int(ds.min_scan_points) < 0:
+        problems.append(f"dataset.min_scan_points={ds.min_scan_points} must be >= 0")
+    if ds.projection not in PROJECTIONS:
+        problems.append(f"dataset.projection={ds.projection} must be one of {PROJECTIONS}")
+    if problems:
+        return problems
+    sequence_dir = data_root(cfg) / ds.sequence
+    if not sequence_dir.is_dir():
+        return [missing_data_message(cfg)]
+    present = recording_frames(sequence_dir)
+    if not present:
+        problems.append(f"{sequence_dir}: no frames found (image_02/data/NNNNNNNNNN.png)")
+    elif last > present[-1]:
+        problems.append(
+            f"dataset.last={last} is past the recording's last frame: frames "
+            f"{present[0]}–{present[-1]} exist in {sequence_dir}"
+        )
+    return problems
+
+
+def validate_config(cfg: DictConfig) -> None:
+    """Raise ``ValueError`` listing :func:`config_problems` (the sweeper calls it)."""
+    problems = config_problems(cfg)
+    if problems:
+        raise ValueError("invalid configuration:\n  " + "\n  ".join(problems))

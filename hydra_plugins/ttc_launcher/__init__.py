@@ -18,6 +18,12 @@ This launcher runs the same jobs with the same joblib/loky pool and the same
   replaced. Any override it cannot prove local goes through Hydra's full composition. A test
   checks that every job of a sweep gets exactly the config Hydra composes.
 
+A worker that dies (a signal: an out-of-memory kill, a segfault in native code) breaks a joblib
+pool and would end the sweep with ``TerminatedWorkerError``. This launcher instead re-runs each
+job that was running at that moment alone in a fresh one-worker pool: a job that dies there
+too is reported as failed with the signal (``JobStatus.FAILED``, and the callbacks'
+``on_job_end`` records it), every other job runs normally, and the sweep goes on.
+
 Select it with ``override hydra/launcher: ttc_joblib`` (the project's default launcher,
 ``conf/hydra/launcher/local.yaml``); it takes the joblib launcher's options.
 """
@@ -27,7 +33,10 @@ Select it with ``override hydra/launcher: ttc_joblib`` (the project's default la
 import copy
 import hashlib
 import logging
+import os
 import pickle
+import re
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,11 +49,20 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override, OverrideType
 from hydra.core.singleton import Singleton
-from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
+from hydra.core.utils import (
+    JobReturn,
+    JobStatus,
+    configure_log,
+    filter_overrides,
+    run_job,
+    setup_globals,
+)
 from hydra_plugins.hydra_joblib_launcher._core import process_joblib_cfg
 from hydra_plugins.hydra_joblib_launcher.config import JobLibLauncherConf
 from hydra_plugins.hydra_joblib_launcher.joblib_launcher import JoblibLauncher
 from joblib import Parallel, delayed
+from joblib.externals.loky import get_reusable_executor
+from joblib.externals.loky.process_executor import TerminatedWorkerError
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 log = logging.getLogger(__name__)
@@ -178,8 +196,37 @@ def _worker_state(key: str, payload: bytes) -> dict[str, Any]:
     return _WORKER
 
 
-def execute_job(idx: int, overrides: Sequence[str], key: str, payload: bytes) -> JobReturn:
-    """One job in a worker: its config (:class:`JobComposer`), then Hydra's ``run_job``."""
+#: Folder (in the sweep folder) of the markers of the jobs running right now: ``<job idx>``.
+STARTED_DIR = ".launcher"
+
+
+class WorkerDiedError(RuntimeError):
+    """The process running a job died (a signal: out of memory, a crash in native code)."""
+
+
+def worker_death(exc: BaseException) -> str:
+    """What killed a loky worker, from its ``TerminatedWorkerError``, in words."""
+    found = re.search(r"exit codes of the workers are \{([^}]*)\}", str(exc))
+    codes = found.group(1) if found else "unknown"
+    return (
+        f"worker process died ({codes}): killed by a signal, e.g. out of memory or a crash "
+        "in native code (OpenCV)"
+    )
+
+
+def execute_job(
+    idx: int, overrides: Sequence[str], key: str, payload: bytes, started: str
+) -> JobReturn:
+    """One job in a worker: its config (:class:`JobComposer`), then Hydra's ``run_job``.
+    ``started/<idx>`` exists while it runs (it stays when the worker dies)."""
+    marker = Path(started) / str(idx)
+    marker.write_text(str(os.getpid()))
+    ret = _execute_job(idx, overrides, key, payload)
+    marker.unlink(missing_ok=True)
+    return ret
+
+
+def _execute_job(idx: int, overrides: Sequence[str], key: str, payload: bytes) -> JobReturn:
     state = _worker_state(key, payload)
     sweep_config = state["composer"].compose(overrides)
     with open_dict(sweep_config):
@@ -216,12 +263,65 @@ class TTCLauncher(JoblibLauncher):
             (self.hydra_context, self.config, self.task_function, Singleton.get_state())
         )
         key = hashlib.sha256(payload).hexdigest()
-        runs = Parallel(**joblib_cfg)(
-            delayed(execute_job)(initial_job_idx + idx, list(overrides), key, payload)
-            for idx, overrides in enumerate(job_overrides)
+        started = sweep_dir / STARTED_DIR
+        shutil.rmtree(started, ignore_errors=True)
+        started.mkdir(parents=True)
+        jobs = {initial_job_idx + i: list(o) for i, o in enumerate(job_overrides)}
+        results: dict[int, JobReturn] = {}
+        joblib_cfg["batch_size"] = 1  # a dead worker loses one job, not a batch of them
+        while pending := [i for i in jobs if i not in results]:
+            try:
+                runs = Parallel(**joblib_cfg, return_as="generator_unordered")(
+                    delayed(_indexed)(i, jobs[i], key, payload, str(started)) for i in pending
+                )
+                for i, ret in runs:  # kept one by one: a later crash loses none of them
+                    results[i] = ret
+            except TerminatedWorkerError as exc:
+                left = [i for i in pending if i not in results]
+                running = [i for i in left if (started / str(i)).exists()] or left[:1]
+                log.warning(f"{worker_death(exc)}; re-running its jobs {running} one by one")
+                for i in running:
+                    results[i] = self._alone(i, jobs[i], key, payload, started)
+        shutil.rmtree(started, ignore_errors=True)
+        assert all(isinstance(run, JobReturn) for run in results.values())
+        return [results[i] for i in sorted(jobs)]
+
+    def _alone(
+        self, idx: int, overrides: list[str], key: str, payload: bytes, started: Path
+    ) -> JobReturn:
+        """Run one job alone in a fresh worker; a job that kills it is reported FAILED."""
+        executor = get_reusable_executor(max_workers=1, kill_workers=True)
+        try:
+            return executor.submit(execute_job, idx, overrides, key, payload, str(started)).result()
+        except TerminatedWorkerError as exc:
+            message = worker_death(exc)
+        log.error(f"job #{idx} ({' '.join(overrides)}): {message}")
+        assert self.hydra_context is not None and self.config is not None
+        cfg = self.hydra_context.config_loader.load_sweep_config(self.config, overrides)
+        with open_dict(cfg):
+            cfg.hydra.job.id, cfg.hydra.job.num = f"{cfg.hydra.job.name}_{idx}", idx
+        ret = JobReturn(
+            overrides=overrides,
+            cfg=cfg,
+            hydra_cfg=cfg,
+            status=JobStatus.FAILED,
+            _return_value=WorkerDiedError(message),
         )
-        assert all(isinstance(run, JobReturn) for run in runs)
-        return runs
+        self.hydra_context.callbacks.on_job_end(config=cfg, job_return=ret)
+        return ret
 
 
-__all__ = ["JobComposer", "TTCLauncher", "TTCLauncherConf", "execute_job"]
+def _indexed(
+    idx: int, overrides: Sequence[str], key: str, payload: bytes, started: str
+) -> tuple[int, JobReturn]:
+    return idx, execute_job(idx, overrides, key, payload, started)
+
+
+__all__ = [
+    "JobComposer",
+    "TTCLauncher",
+    "TTCLauncherConf",
+    "WorkerDiedError",
+    "execute_job",
+    "worker_death",
+]
