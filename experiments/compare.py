@@ -1,5 +1,5 @@
 """Two sweeps side by side: each setting's metrics in both, better / worse / same beyond the
-bootstrap intervals (:func:`ttc.evaluation.metrics.compare_runs`).
+bootstrap intervals (:func:`ttc.evaluation.compare_runs`).
 
 Usage::
 
@@ -21,8 +21,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments import report
-from ttc.evaluation import metrics
+from experiments.report.encode import markdown_table, write_text
+from experiments.report.fp6 import N_BOOT
+from experiments.report.header import provenance_markdown
+from experiments.report.load import Context, SweepData, load_sweeps, make_context, reference_for
+from ttc import evaluation as ev
+from ttc.pipeline import AXES
 
 #: Columns of the comparison shown in the markdown (per sensor ``s``), besides the key.
 SHOWN = ("rank_a", "rank_b", "{s}_outlier_rate_a", "{s}_outlier_rate_b",
@@ -33,21 +37,19 @@ SHOWN = ("rank_a", "rank_b", "{s}_outlier_rate_a", "{s}_outlier_rate_b",
 class SweepMetrics:
     """One sweep's data, per-run metrics and bootstrap intervals against the reference."""
 
-    data: report.SweepData
+    data: SweepData
     metrics: pd.DataFrame
     intervals: pd.DataFrame
 
 
-def sweep_metrics(
-    sweep_dir: Path, ctx: report.Context, sensor: str, n_boot: int = report.N_BOOT
-) -> SweepMetrics:
+def sweep_metrics(sweep_dir: Path, ctx: Context, sensor: str, n_boot: int = N_BOOT) -> SweepMetrics:
     """Metrics and bootstrap intervals of every ok run of a sweep (sensor: camera / lidar)."""
-    data = report.load_sweeps([sweep_dir])
+    data = load_sweeps([sweep_dir])
     if data.frames.empty:
         raise ValueError(f"{sweep_dir} has no ok run")
-    reference = report.reference_for(data, ctx)
-    table = metrics.run_metrics(data.frames, reference)
-    intervals = metrics.bootstrap_rank_intervals(
+    reference = reference_for(data, ctx)
+    table = ev.run_metrics(data.frames, reference)
+    intervals = ev.bootstrap_rank_intervals(
         data.frames, reference, n_boot=n_boot, seed=0, sensor=sensor
     )
     return SweepMetrics(data, table, intervals)
@@ -55,10 +57,10 @@ def sweep_metrics(
 
 def match_key(a: pd.DataFrame, b: pd.DataFrame, ignore: list[str]) -> list[str]:
     """Axis columns both metric tables have, minus ``ignore``."""
-    unknown = sorted(set(ignore) - set(metrics.AXES))
+    unknown = sorted(set(ignore) - set(AXES))
     if unknown:
-        raise ValueError(f"--ignore {unknown}: not an axis ({', '.join(metrics.AXES)})")
-    return [x for x in metrics.AXES if x in a and x in b and x not in ignore]
+        raise ValueError(f"--ignore {unknown}: not an axis ({', '.join(AXES)})")
+    return [x for x in AXES if x in a and x in b and x not in ignore]
 
 
 def check_unique(table: pd.DataFrame, key: list[str], name: str) -> None:
@@ -78,14 +80,14 @@ def compare_sweeps(
     key = match_key(a.metrics, b.metrics, ignore or [])
     check_unique(a.metrics, key, "A")
     check_unique(b.metrics, key, "B")
-    table = metrics.compare_runs(a.metrics, b.metrics, a.intervals, b.intervals, key, sensor)
+    table = ev.compare_runs(a.metrics, b.metrics, a.intervals, b.intervals, key, sensor)
     if table.empty:
         raise ValueError(
             "no setting of A matches one of B on " + ", ".join(key)
             + "; --ignore the axes whose values differ between the sweeps (e.g. dataset)"
         )  # fmt: skip
     varying = [k for k in key if table[k].nunique() > 1] or key[:2]
-    table.insert(0, "setting", report.setting_labels(table, varying))
+    table.insert(0, "setting", ev.setting_labels(table, varying))
     order = {"worse": 0, "better": 1, "same": 2}
     return table.sort_values(
         ["verdict", "setting"], key=lambda c: c.map(order) if c.name == "verdict" else c
@@ -94,7 +96,7 @@ def compare_sweeps(
 
 def compare_markdown(table: pd.DataFrame, a: SweepMetrics, b: SweepMetrics, sensor: str) -> str:
     """The comparison as markdown: provenance of both sweeps, verdict counts, the table."""
-    both = report.SweepData(
+    both = SweepData(
         a.data.dirs + b.data.dirs,
         a.data.frames.iloc[:0],
         pd.concat([a.data.runs, b.data.runs], ignore_index=True),
@@ -103,16 +105,16 @@ def compare_markdown(table: pd.DataFrame, a: SweepMetrics, b: SweepMetrics, sens
     counts = table["verdict"].value_counts()
     shown = ["setting", *[c.format(s=sensor) for c in SHOWN]]
     lines = [
-        report.provenance_markdown(both, f"Sweep comparison ({sensor} TTC): B vs A"),
+        provenance_markdown(both, f"Sweep comparison ({sensor} TTC): B vs A"),
         f"A = `{a.data.dirs[0]}`, B = `{b.data.dirs[0]}`; {len(table)} settings in both "
         f"(A has {len(a.metrics)}, B has {len(b.metrics)} ok runs).",
         "",
         "Verdict of B against A beyond the 90 % paired-bootstrap intervals: the outlier rate "
-        "first, the median relative error when those overlap (`ttc.evaluation.metrics.compare_runs`). "
+        "first, the median relative error when those overlap (`ttc.evaluation.ev.compare_runs`). "
         f"**{counts.get('better', 0)} better, {counts.get('worse', 0)} worse, "
         f"{counts.get('same', 0)} same.**",
         "",
-        report.markdown_table(table[shown]),
+        markdown_table(table[shown]),
         "",
     ]
     return "\n".join(lines)
@@ -123,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("sweep_a", type=Path, help="sweep folder A (the baseline)")
     parser.add_argument("sweep_b", type=Path, help="sweep folder B (judged against A)")
     parser.add_argument("--out", type=Path, default=None, help="markdown file (default: stdout)")
-    parser.add_argument("--sensor", choices=metrics.SENSORS, default="camera")
+    parser.add_argument("--sensor", choices=ev.SENSORS, default="camera")
     parser.add_argument(
         "--ignore",
         action="append",
@@ -137,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     for d in (args.sweep_a, args.sweep_b):
         if not d.is_dir():
             parser.error(f"{d} is not a folder")
-    ctx = report.make_context(args.data_dir, args.cache_dir)
+    ctx = make_context(args.data_dir, args.cache_dir)
     try:
         a = sweep_metrics(args.sweep_a, ctx, args.sensor)
         b = sweep_metrics(args.sweep_b, ctx, args.sensor)
@@ -148,8 +150,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.out is None:
         print(text)
         return
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
+    write_text(text, args.out)
     print(f"comparison: {args.out} ({table['verdict'].value_counts().to_dict()})")
 
 

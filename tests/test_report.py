@@ -9,11 +9,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
 
-from experiments import report, store
+from experiments import store
+from experiments.report import encode
+from experiments.report.pictures import MAX_CAMERA_PICTURES, MAX_LIDAR_PICTURES
 from tests.conftest import PROJECT_ROOT
 
 COMMITTED_FP5 = "results/kitti_0_18/fp5_lidar_ttc.csv"
@@ -90,82 +93,18 @@ def grid_report(camera_grid) -> Path:
     return make_report(root, [sweep], root / "reports" / "grid")
 
 
-# --------------------------------------------------------------------------- rules (fast)
-
-
-def test_pareto_front_keeps_only_undominated_points() -> None:
-    ms = np.array([10.0, 5.0, 20.0, 5.0, 30.0])
-    err = np.array([0.2, 0.5, 0.1, 0.4, 0.1])
-    assert report.pareto_front(ms, err).tolist() == [3, 0, 2]
-
-
-def test_combine_reasons_joins_codes_and_texts() -> None:
-    index = pd.Index([0, 1, 2])
-    parts = {
-        "code": pd.Series(["receding: moving away", "", ""], index=index),
-        "noise_floor": pd.Series(["small step", "", "tiny"], index=index),
-    }
-    out = report.combine_reasons(parts, index)
-    assert out["reasons"].tolist() == ["receding;noise_floor", "", "noise_floor"]
-    assert out["reason_text"].tolist() == ["receding: moving away. small step.", "", "tiny."]
-
-
-def _lidar_row(**values) -> dict:
-    row = dict(frame=5, prev_frame=4, lidar_reason="ok", scan_short=False, scan_points_curr=113000,
-               scan_usual=113000.0, lidar_points_curr=300, lidar_median_curr=7.8,
-               d_prev=7.90, d_curr=7.84, ref_d_prev=7.92, ref_d_curr=7.86,
-               lidar_closest_prev=7.88, lidar_closest_curr=7.82, est_step=0.06, raw_step=0.06,
-               ref_step=0.06, anomaly_prev=0.0, anomaly_curr=0.0, lead_before=0, prev_box=0,
-               curr_box=0, box_w=170, box_h=140, w_before=170.0, h_before=140.0)  # fmt: skip
-    row.update(values)
-    return row
-
-
-def _fired(**values) -> list[str]:
-    table = pd.DataFrame([_lidar_row(**values)])
-    return [name for name, text in report.lidar_rules(table).items() if text.iloc[0]]
-
-
-def test_lidar_rules_fire_on_their_evidence_only() -> None:
-    assert _fired() == []
-    # a point 20 cm in front of the rear that the estimate followed
-    assert _fired(lidar_closest_curr=7.66, d_curr=7.66, anomaly_curr=-0.2) == ["points_ahead"]
-    # the same point ignored by the estimator (its distance kept its usual offset): no reason
-    assert _fired(lidar_closest_curr=7.66) == []
-    assert _fired(est_step=0.01) == ["noise_floor"]
-    assert _fired(scan_short=True, lidar_reason="receding") == ["scan_short", "code"]
-    assert _fired(prev_box=1) == ["box_switch"]
-    assert _fired(box_h=175) == ["box_jump"]
-    assert _fired(raw_step=0.10, est_step=0.105) == ["measured_step"]
-
-
-def test_camera_rules_and_fallback() -> None:
-    row = dict(camera_reason="ok", camera_ratio=1.0074, ratio_expected=1.0074, ttc_camera=13.5,
-               camera_false_alarm=np.nan, matches_kept=60, matches_in_box=70, matches_removed=10,
-               keypoints_curr=1500, keypoint_filter="median_distance", box_w=170)  # fmt: skip
-    table = pd.DataFrame(
-        [
-            row,
-            {**row, "matches_kept": 5, "camera_ratio": 1.0005},
-            {**row, "matches_removed": 40, "camera_reason": "too_few_pairs"},
-        ]
-    )
-    fired = report.combine_reasons(report.camera_rules(table), table.index)["reasons"]
-    assert fired.tolist() == ["", "few_matches;ratio_near_one", "too_few_pairs;many_removed"]
-    assert "0.5 px" in report.camera_fallback(table.iloc[[0]].assign(camera_ratio=1.0104)).iloc[0]
+# --------------------------------------------------------------------------- encoding (fast)
 
 
 def test_within_budget_shrinks_a_picture_until_it_fits() -> None:
     noise = np.random.default_rng(0).integers(0, 255, (600, 800, 3), dtype=np.uint8)
-    small = report.within_budget(noise, 200_000)
+    small = encode.within_budget(noise, 200_000)
     assert small.shape[1] < 800
-    import cv2
-
     assert len(cv2.imencode(".png", small)[1]) <= 200_000
 
 
 def test_markdown_table_formats_cells() -> None:
-    table = report.markdown_table(pd.DataFrame({"a": [1.23456, np.inf], "b": ["x|y", "z"]}))
+    table = encode.markdown_table(pd.DataFrame({"a": [1.23456, np.inf], "b": ["x|y", "z"]}))
     assert table.splitlines() == ["| a | b |", "|---|---|", "| 1.23 | x\\|y |", "| inf | z |"]
 
 
@@ -193,8 +132,8 @@ def test_fp5_pictures_are_bounded_and_linked(fp5_report: Path) -> None:
     pictures = sorted((fp5_report / "fp5_pictures").glob("*.png"))
     table = pd.read_csv(fp5_report / "fp5_lidar_ttc.csv")
     flagged_frames = table.loc[table["flagged"], "frame"].nunique()
-    assert len(pictures) == min(flagged_frames, report.MAX_LIDAR_PICTURES) >= 1
-    assert all(p.stat().st_size <= report.LIDAR_PICTURE_BYTES for p in pictures)
+    assert len(pictures) == min(flagged_frames, MAX_LIDAR_PICTURES) >= 1
+    assert all(p.stat().st_size <= encode.LIDAR_PICTURE_BYTES for p in pictures)
     text = (fp5_report / "fp5_lidar.md").read_text()
     assert all(f"fp5_pictures/{p.name}" in text for p in pictures)
 
@@ -245,12 +184,10 @@ def test_fp6_report_on_a_camera_grid(grid_report: Path, camera_grid) -> None:
     assert way["reasons"].notna().all()
     assert frames.loc[~frames["way_off"], "reasons"].isna().all()
     for name in ("fp6_heatmap.png", "fp6_ttc_series.png", "fp6_pareto.png", "reference.png"):
-        assert 5_000 < (grid_report / name).stat().st_size <= report.MAX_PICTURE_BYTES
+        assert 5_000 < (grid_report / name).stat().st_size <= encode.MAX_PICTURE_BYTES
     pictures = list((grid_report / "fp6_pictures").glob("*.png"))
-    assert len(pictures) == min(
-        len(way.groupby(["detector", "descriptor"])), report.MAX_CAMERA_PICTURES
-    )
-    assert all(p.stat().st_size <= report.MAX_PICTURE_BYTES for p in pictures)
+    assert len(pictures) == min(len(way.groupby(["detector", "descriptor"])), MAX_CAMERA_PICTURES)
+    assert all(p.stat().st_size <= encode.MAX_PICTURE_BYTES for p in pictures)
     # one lidar estimator in the sweep still gives its FP.5 section
     lidar = pd.read_csv(grid_report / "fp5_lidar_ttc.csv")
     assert set(lidar["lidar_ttc"]) == {"median"} and len(lidar) == 5

@@ -1,0 +1,23 @@
+"""The FP.5 (lidar) and FP.6 (camera) reports of one or more sweeps: markdown + CSV + PNG.
+
+Usage::
+
+    python -m experiments.report sweeps/fp6_grid_kitti_0_18 --out results/kitti_0_18
+    python -m experiments.report sweeps/fp5_lidar_kitti_0_18 sweeps/fp6_grid_kitti_0_18 \\
+        --out results/kitti_0_18
+
+Writes ``metrics.parquet`` beside each sweep (one row per run) and, under ``--out``:
+
+* ``reference.md/.csv/.png``: the reference TTC and its caveats (:mod:`.reference`);
+* ``fp5_lidar.md``, ``fp5_lidar_ttc.csv`` (one row per frame × lidar estimator),
+  ``fp5_lidar_ttc.png`` and ``fp5_pictures/`` (top views of flagged frames) (:mod:`.fp5`);
+* ``fp6_camera.md``, ``fp6_camera_ttc.csv`` (one row per frame × camera setting),
+  ``fp6_ranking.csv`` (metrics + bootstrap rank interval per setting), the heatmap, series and
+  Pareto plots and ``fp6_pictures/`` (keypoint matches of the worst frames) (:mod:`.fp6`).
+
+The judging (reference, metrics, ranking, the FP.5 / FP.6 diagnosis rules) is
+:mod:`ttc.evaluation`; the modules here load sweeps (:mod:`.load`), recompute the few frame
+pairs the rules measure on, and write: :mod:`.header` (provenance), :mod:`.encode` (markdown,
+CSV, PNG), :mod:`.plots`, :mod:`.pictures`, :mod:`.cli` (the command). The CSVs hold no
+timestamps and fixed float formats: the same sweep data gives byte-identical CSVs.
+"""

@@ -1,0 +1,142 @@
+"""Reading sweeps for a report or a notebook: rows and run records of one or more sweep
+folders, the data root and stage cache, the reference of their recording, and the
+intermediate arrays of a run's frame pair (recomputed through the stage cache)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+import yaml
+from omegaconf import DictConfig, OmegaConf
+
+from experiments import store
+from experiments.config import frame_range_from_config, settings_from_config
+from experiments.paths import PROJECT_ROOT, default_cache_dir, default_data_root
+from experiments.reference_store import sequence_of, sequence_reference
+from ttc import evaluation as ev
+from ttc.cache import StageCache
+from ttc.pipeline import FrameRange, PairDetail, Settings, pair_detail
+
+
+@dataclass
+class SweepData:
+    """Rows and run records of one or more sweeps (run ids unique across them)."""
+
+    dirs: list[Path]
+    frames: pd.DataFrame
+    runs: pd.DataFrame
+    overrides: dict[str, list[str]] = field(default_factory=dict)
+    repeated: int = 0  # runs of a later sweep already present in an earlier one (dropped)
+
+
+def read_sweep(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``frames.parquet`` and ``runs.parquet`` of a sweep (merged first when missing)."""
+    sweep_dir = Path(sweep_dir)
+    frames_path, runs_path = sweep_dir / store.FRAMES_FILE, sweep_dir / store.RUNS_FILE
+    if not (frames_path.is_file() and runs_path.is_file()):
+        if not (sweep_dir / store.RUNS_DIR).is_dir():
+            raise FileNotFoundError(f"{sweep_dir} is not a sweep folder (no {store.RUNS_DIR}/)")
+        return store.collect(sweep_dir)
+    return pd.read_parquet(frames_path), pd.read_parquet(runs_path)
+
+
+def sweep_overrides(sweep_dir: Path) -> list[str]:
+    """The command-line overrides of a sweep (Hydra's ``multirun.yaml``), or []."""
+    path = Path(sweep_dir) / "multirun.yaml"
+    if not path.is_file():
+        return []
+    doc = yaml.safe_load(path.read_text()) or {}
+    hydra = doc.get("hydra", {})
+    task = list(hydra.get("overrides", {}).get("task", []) or [])
+    params = hydra.get("sweeper", {}).get("params", {}) or {}
+    return task + [f"{k}={v} (sweep)" for k, v in params.items()]
+
+
+def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
+    """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
+    frames get ``ms_compute_per_frame`` looked up over all of them
+    (:func:`ttc.evaluation.with_compute_times`)."""
+    dirs = [Path(d) for d in dirs]
+    frame_parts, run_parts, overrides = [], [], {}
+    seen: set[str] = set()
+    repeated = 0
+    for d in dirs:
+        frames, runs = read_sweep(d)
+        if runs.empty:
+            continue
+        known = runs["run_id"].isin(seen)
+        repeated += int(known.sum())
+        runs = runs[~known].assign(sweep_dir=str(d.resolve()))
+        if not frames.empty:
+            frame_parts.append(frames[frames["run_id"].isin(runs["run_id"])])
+        run_parts.append(runs)
+        seen |= set(runs["run_id"])
+        overrides[d.name] = sweep_overrides(d)
+    frames = pd.concat(frame_parts, ignore_index=True) if frame_parts else pd.DataFrame()
+    runs = pd.concat(run_parts, ignore_index=True) if run_parts else pd.DataFrame()
+    if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
+        frames = ev.with_compute_times(frames)
+    return SweepData(dirs, frames, runs, overrides, repeated)
+
+
+def run_config(config_json: str, root: Path) -> DictConfig:
+    """A run's stored setting config (runs.parquet ``config``) with the data root put back."""
+    cfg = OmegaConf.create(json.loads(config_json))
+    cfg.dataset.root = str(root)
+    return cfg
+
+
+def setting_of_run(runs: pd.DataFrame, run_id: str, root: Path) -> tuple[Settings, FrameRange]:
+    """The core :class:`Settings` and :class:`FrameRange` of a run of ``runs``."""
+    config = runs.loc[runs["run_id"] == run_id, "config"].iloc[0]
+    cfg = run_config(config, root)
+    return settings_from_config(cfg), frame_range_from_config(cfg)
+
+
+@dataclass
+class Context:
+    """What a report needs besides the sweep tables: data root, stage cache, pair details."""
+
+    root: Path
+    cache: StageCache
+    details: dict[tuple[str, int, int], PairDetail] = field(default_factory=dict)
+    calls: int = 0
+
+    def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
+        """:func:`~ttc.pipeline.pair_detail` of a run's frame pair (memoised)."""
+        key = (run_id, prev, curr)
+        if key not in self.details:
+            settings, frames = setting_of_run(runs, run_id, self.root)
+            self.details[key] = pair_detail(settings, frames, prev, curr, self.cache)
+            self.calls += 1
+        return self.details[key]
+
+    def settings(self, runs: pd.DataFrame, run_id: str) -> Settings:
+        """The core settings of a run of ``runs``."""
+        return setting_of_run(runs, run_id, self.root)[0]
+
+
+def make_context(data_dir: Path | None = None, cache_dir: Path | None = None) -> Context:
+    """A :class:`Context` with the given or default data root and cache folder."""
+    root = Path(data_dir) if data_dir else default_data_root()
+    cache = StageCache(cache_dir if cache_dir else default_cache_dir())
+    return Context(root, cache)
+
+
+def reference_for(data: SweepData, ctx: Context) -> pd.DataFrame:
+    """The reference of the sweeps' recording (kept in the stage cache)."""
+    return sequence_reference(ctx.root / sequence_of(data.runs), ctx.cache)
+
+
+def open_sweep(sweep_dir: Path | str) -> tuple[SweepData, Context, pd.DataFrame]:
+    """A sweep folder (relative paths from the project root) as the notebooks use it: its
+    data, the default context and its reference."""
+    sweep_dir = Path(sweep_dir)
+    sweep_dir = sweep_dir if sweep_dir.is_absolute() else PROJECT_ROOT / sweep_dir
+    data = load_sweeps([sweep_dir])
+    ctx = make_context()
+    return data, ctx, reference_for(data, ctx)

@@ -1,0 +1,162 @@
+"""The report's matplotlib figures: reference, FP.5 lidar TTC series, FP.6 heatmap, best and
+worst series, accuracy against time. Each function takes tables and returns a figure;
+:func:`save_figure` writes it."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import seaborn as sns
+
+from ttc import evaluation as ev
+from ttc.atomic import write_bytes_atomic
+
+FIGURE_DPI = 90
+
+
+def save_figure(fig: plt.Figure, path: Path) -> Path:
+    """Save a matplotlib figure as a compact PNG (atomically) and close it."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=FIGURE_DPI, bbox_inches="tight",
+                metadata={"Software": None})  # fmt: skip
+    plt.close(fig)
+    return write_bytes_atomic(buffer.getvalue(), path)
+
+
+def _ttc_ceiling(reference: pd.DataFrame, frames: pd.Series, factor: float) -> tuple:
+    """The reference rows of ``frames`` and the top of a TTC axis: ``factor`` times the
+    largest finite reference TTC (s), 60 s without one."""
+    ref = reference[reference["frame"].isin(frames.unique())]
+    finite_ref = ref["ttc_ref_s"].where(np.isfinite(ref["ttc_ref_s"]))
+    top = factor * float(finite_ref.max()) if finite_ref.notna().any() else 60.0
+    return ref, top
+
+
+def plot_reference(reference: pd.DataFrame) -> plt.Figure:
+    """Distance (m), closing speed (m/s) and reference TTC (s) per frame."""
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    interp = reference["distance_interpolated"].astype(bool)
+    axes[0].plot(reference["frame"], reference["distance_m"], "o", ms=3, label="lidar rear")
+    axes[0].plot(reference["frame"], reference["distance_smooth_m"], "-", label="smoothed")
+    axes[0].plot(reference.loc[interp, "frame"], reference.loc[interp, "distance_smooth_m"],
+                 "x", color="crimson", ms=8, label="interpolated")  # fmt: skip
+    axes[0].set_ylabel("distance (m)")
+    axes[1].plot(reference["frame"], reference["closing_speed_mps"], "-o", ms=3)
+    axes[1].axhline(ev.MIN_CLOSING_SPEED_MPS, color="grey", ls="--",
+                    label="min closing speed")  # fmt: skip
+    axes[1].set_ylabel("closing speed (m/s)")
+    ttc = reference["ttc_ref_s"].where(np.isfinite(reference["ttc_ref_s"]))
+    axes[2].plot(reference["frame"], ttc, "-o", ms=3, color="black")
+    no_course = ~reference["collision_course"].astype(bool)
+    axes[2].fill_between(reference["frame"], 0, 1, where=no_course, color="grey", alpha=0.2,
+                         transform=axes[2].get_xaxis_transform(),
+                         label="no collision course")  # fmt: skip
+    axes[2].set(ylabel="reference TTC (s)", xlabel="frame", ylim=(0, min(60, ttc.max() * 1.1)))
+    for ax in axes:
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    fig.suptitle("reference: lead vehicle distance, closing speed and TTC")
+    fig.tight_layout()
+    return fig
+
+
+def plot_lidar_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
+    """Lidar TTC per frame and estimator (FP.5 table ``t``) against the reference; flagged
+    frames crossed, invalid TTCs (NaN / inf) as triangles on the top edge, values above it
+    clipped."""
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    ref, top = _ttc_ceiling(reference, t["frame"], 2.5)
+    valid = np.isfinite(t["ttc_lidar"])
+    shown = t.assign(ttc=t["ttc_lidar"].where(valid).clip(upper=top))
+    order = sorted(t["lidar_ttc"].unique())
+    sns.lineplot(data=shown[valid], x="frame", y="ttc", hue="lidar_ttc", hue_order=order,
+                 style="dataset", marker="o", markersize=4, ax=ax)  # fmt: skip
+    bad = shown[~valid]
+    sns.scatterplot(x=bad["frame"], y=np.full(len(bad), 0.98 * top), hue=bad["lidar_ttc"],
+                    hue_order=order, marker="v", s=50, legend=False, ax=ax)  # fmt: skip
+    flagged = shown[shown["flagged"]]
+    ax.scatter(flagged["frame"], flagged["ttc"].fillna(0.98 * top), marker="x", s=60,
+               color="crimson", label="flagged", zorder=5)  # fmt: skip
+    ax.plot(ref["frame"], ref["ttc_ref_s"], color="black", lw=2.5, label="reference")
+    ax.set(ylim=(0, top), xlabel="frame", ylabel="TTC (s, clipped)",
+           title="FP.5 lidar TTC (triangles on top: invalid TTC)")  # fmt: skip
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    return fig
+
+
+def plot_heatmap(ranking: pd.DataFrame) -> plt.Figure:
+    """Detector × descriptor heatmaps of the best setting's outlier rate and median error."""
+    best = ranking.sort_values("rank").drop_duplicates(["detector", "descriptor"])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, (col, label) in zip(
+        axes,
+        (("camera_outlier_rate", "outlier rate"), ("camera_medae_rel", "median |rel. error|")),
+        strict=True,
+    ):
+        grid = best.pivot(index="detector", columns="descriptor", values=col)
+        sns.heatmap(grid, annot=True, fmt=".2f", cmap="rocket_r", vmin=0, ax=ax,
+                    cbar_kws={"shrink": 0.8}, annot_kws={"size": 8})  # fmt: skip
+        ax.set_title(f"{label} (best over the other axes)", fontsize=10)
+    fig.suptitle("FP.6 camera TTC error by detector x descriptor (blank: invalid pair)")
+    fig.tight_layout()
+    return fig
+
+
+def plot_top_bottom(
+    t: pd.DataFrame, ranking: pd.DataFrame, reference: pd.DataFrame, n: int = 3
+) -> plt.Figure:
+    """Camera TTC per frame of the ``n`` best and ``n`` worst settings against the reference;
+    invalid TTCs as triangles on the top edge, values above it clipped."""
+    ranked = ranking.sort_values("rank")["setting"].drop_duplicates().tolist()
+    picked = ranked[:n] + [s for s in ranked[-n:] if s not in ranked[:n]]
+    sub = t[t["setting"].isin(picked)].copy()
+    sub["group"] = np.where(sub["setting"].isin(ranked[:n]), "best", "worst")
+    ref, top = _ttc_ceiling(reference, t["frame"], 3.0)
+    valid = np.isfinite(sub["ttc_camera"])
+    sub["ttc"] = sub["ttc_camera"].where(valid).clip(upper=top)
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    sns.lineplot(data=sub[valid], x="frame", y="ttc", hue="setting", hue_order=picked,
+                 style="group", style_order=["best", "worst"], marker="o", markersize=4,
+                 ax=ax)  # fmt: skip
+    bad = sub[~valid]
+    sns.scatterplot(x=bad["frame"], y=np.full(len(bad), 0.98 * top), hue=bad["setting"],
+                    hue_order=picked, marker="v", s=50, legend=False, ax=ax)  # fmt: skip
+    ax.plot(ref["frame"], ref["ttc_ref_s"], color="black", lw=2.5, label="reference")
+    ax.set(ylim=(0, top), xlabel="frame", ylabel="camera TTC (s, clipped)",
+           title=f"best {n} and worst {n} settings (triangles on top: invalid TTC)")  # fmt: skip
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    return fig
+
+
+def plot_pareto(ranking: pd.DataFrame) -> plt.Figure:
+    """Accuracy against time per frame, with the Pareto front of each accuracy metric
+    (:func:`ttc.evaluation.pareto_front`).
+
+    Time: ``ms_compute_per_frame`` (cached stages at their computing time), else the run's
+    own ``ms_per_frame``."""
+    time_col = "ms_frame"
+    ranking = ranking.assign(
+        **{time_col: ranking["ms_compute_per_frame"].fillna(ranking["ms_per_frame"])}
+    )
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax, col in zip(axes, ("camera_outlier_rate", "camera_medae_rel"), strict=True):
+        sns.scatterplot(data=ranking, x=time_col, y=col, hue="detector", style="descriptor",
+                        s=40, ax=ax)  # fmt: skip
+        front = ranking.iloc[ev.pareto_front(ranking[time_col].to_numpy(float),
+                                             ranking[col].to_numpy(float))]  # fmt: skip
+        ax.step(front[time_col], front[col], where="post", color="black", lw=1.2,
+                label="Pareto front")  # fmt: skip
+        for r in front.itertuples():
+            ax.annotate(r.setting, (getattr(r, time_col), getattr(r, col)), fontsize=6,
+                        xytext=(3, 3), textcoords="offset points")  # fmt: skip
+        ax.set(xscale="log", xlabel="time per frame (ms, log; computed stages)", ylabel=col)
+        ax.legend(fontsize=6, ncol=2)
+    fig.suptitle("accuracy against time per frame")
+    fig.tight_layout()
+    return fig
