@@ -38,8 +38,10 @@ from experiments.config import (
     register_configs,
     settings_from_config,
 )
+from experiments.report.encode import save_png
 from experiments.run import check_data
-from ttc import visualize as vis
+from ttc import draw
+from ttc import evaluation as ev
 from ttc.cache import StageCache
 from ttc.frames import FrameDataError, frame_files, load_calibration, read_lidar_scan
 from ttc.lidar import project_to_image
@@ -70,12 +72,6 @@ def setting_title(cfg: DictConfig) -> str:
     )
 
 
-def lead_box_of(owner: np.ndarray, n_boxes: int) -> int:
-    """The box holding most lane points (the pipeline's lead rule), or −1."""
-    counts = np.bincount(owner[owner >= 0], minlength=n_boxes)
-    return int(np.argmax(counts)) if n_boxes and counts.max(initial=0) > 0 else -1
-
-
 def lidar_picture(
     detail: PairDetail, frame: int, frames: FrameRange, settings: Settings, names: list[str]
 ) -> np.ndarray:
@@ -85,24 +81,25 @@ def lidar_picture(
     ahead = scan[(scan[:, 0] > 0.0) & (scan[:, 0] <= SCAN_MAX_X)]
     calib = load_calibration(frames.sequence_dir, frames.projection)
     uv = project_to_image(ahead[:, :3], calib.velo_to_image)
-    top = vis.draw_lidar_on_image(image, uv, ahead[:, 0], SCAN_MAX_X, radius=1)
-    top = vis.draw_distance_legend(top, 0.0, SCAN_MAX_X)
-    vis.put_lines(top, [f"frame {frame}: scan points 0 < x <= {SCAN_MAX_X:.0f} m "
+    top = draw.draw_lidar_on_image(image, uv, ahead[:, 0], SCAN_MAX_X, radius=1)
+    top = draw.draw_distance_legend(top, 0.0, SCAN_MAX_X)
+    draw.put_lines(top, [f"frame {frame}: scan points 0 < x <= {SCAN_MAX_X:.0f} m "
                         f"({len(ahead)} of {len(scan)})"])  # fmt: skip
     lane = settings.lane
-    rois = detail.objects[frame]["roi"]
     owner = detail.lane_owner[frame]
-    bottom = vis.draw_boxes(image, rois, vis.box_labels(detail.objects[frame], names),
-                            lead_box_of(owner, len(rois)))  # fmt: skip
+    lead = ev.lead_box_of(owner, len(detail.objects[frame]["roi"]))
+    bottom = draw.draw_frame_boxes(detail, frame, names, lead)
     pts = detail.lane_points[frame]
-    bottom = vis.draw_lidar_on_image(bottom, detail.lane_uv[frame], pts[:, 0], lane.max_x, radius=3)
-    bottom = vis.draw_distance_legend(bottom, 0.0, lane.max_x)
-    vis.put_lines(bottom, [
+    bottom = draw.draw_lidar_on_image(
+        bottom, detail.lane_uv[frame], pts[:, 0], lane.max_x, radius=3
+    )
+    bottom = draw.draw_distance_legend(bottom, 0.0, lane.max_x)
+    draw.put_lines(bottom, [
         f"ego lane: {lane.min_x:g} <= x <= {lane.max_x:g} m, |y| <= {lane.max_abs_y:g} m, "
         f"{lane.min_z:g} <= z <= {lane.max_z:g} m, r >= {lane.min_reflectance:g}: {len(pts)} pts, "
         f"{int(np.sum(owner >= 0))} in one box",
     ])  # fmt: skip
-    return vis.stack(top, bottom)
+    return draw.stack(top, bottom)
 
 
 def top_view_picture(
@@ -111,17 +108,17 @@ def top_view_picture(
     """Lane points per box from above: the whole lane (left), the lead's rear zoomed (right)."""
     pts, owner = detail.lane_points[frame], detail.lane_owner[frame]
     objects = detail.objects[frame]
-    labels = vis.box_labels(objects, names)
+    labels = draw.box_labels(objects, names)
     boxes = [int(b) for b in np.unique(owner[owner >= 0])]
     boxes.sort(key=lambda b: -int(np.sum(owner == b)))
     clouds = [(labels[b], pts[owner == b]) for b in boxes]
     if np.any(owner < 0):
         clouds.append(("in no box / two boxes", pts[owner < 0]))
-    lead = lead_box_of(owner, len(objects["roi"]))
-    marks = vis.estimator_marks(pts[owner == lead], settings.lidar_ttc) if lead >= 0 else None
+    lead = ev.lead_box_of(owner, len(objects["roi"]))
+    marks = ev.estimator_marks(pts[owner == lead], settings.lidar_ttc) if lead >= 0 else None
     lane = settings.lane
     half = lane.max_abs_y + 0.5
-    overview = vis.top_view(
+    overview = draw.top_view(
         clouds, marks, world=((0.0, lane.max_x), (-half, half)), size=(420, 1000), grid=2.0,
         title=f"frame {frame}: lane points per box",
     )  # fmt: skip
@@ -129,7 +126,7 @@ def top_view_picture(
         return overview
     near = float(pts[owner == lead, 0].min())
     x0 = np.floor(near * 4.0) / 4.0 - 0.5
-    zoom = vis.top_view(
+    zoom = draw.top_view(
         clouds, marks, world=((x0, x0 + 2.0), (-half, half)), size=(580, 1000), grid=0.25, lateral_grid=1.0,
         title=f"lead box #{lead}, zoomed: rear distance by estimator",
     )  # fmt: skip
@@ -142,10 +139,9 @@ def frame_pictures(
 ) -> dict[str, np.ndarray]:
     """``objects.png``, ``lidar.png``, ``top_view.png`` of ``frame`` (one of the pair's)."""
     objects = detail.objects[frame]
-    lead = lead_box_of(detail.lane_owner[frame], len(objects["roi"]))
-    boxes = vis.draw_boxes(detail.images[frame], objects["roi"], vis.box_labels(objects, names),
-                           lead if lead >= 0 else None)  # fmt: skip
-    vis.put_lines(boxes, [f"frame {frame}: {len(objects['roi'])} boxes ({settings.objects.name}), "
+    lead = ev.lead_box_of(detail.lane_owner[frame], len(objects["roi"]))
+    boxes = draw.draw_frame_boxes(detail, frame, names, lead)
+    draw.put_lines(boxes, [f"frame {frame}: {len(objects['roi'])} boxes ({settings.objects.name}), "
                           f"lead (most lane lidar points) yellow"])  # fmt: skip
     return {
         "objects.png": boxes,
@@ -157,9 +153,9 @@ def frame_pictures(
 def pair_pictures(detail: PairDetail, names: list[str], title: str) -> dict[str, np.ndarray]:
     """``lead_ttc.png``, ``keypoint_matches.png``, ``box_matches.png`` of a frame pair."""
     return {
-        "lead_ttc.png": vis.draw_lead_ttc(detail, names, title),
-        "keypoint_matches.png": vis.draw_keypoint_matches(detail, names=names, title=title),
-        "box_matches.png": vis.draw_box_matches(detail, names, title),
+        "lead_ttc.png": draw.draw_lead_ttc(detail, names, title),
+        "keypoint_matches.png": draw.draw_keypoint_matches(detail, names=names, title=title),
+        "box_matches.png": draw.draw_box_matches(detail, names, title),
     }
 
 
@@ -179,7 +175,7 @@ def write_pictures(cfg: DictConfig) -> list[Path]:
     if has_prev:
         pictures |= pair_pictures(detail, names, setting_title(cfg))
     out_dir = Path(str(cfg.show.out_dir)) / f"frame_{frame:04d}"
-    return [vis.save_png(image, out_dir / name) for name, image in pictures.items()]
+    return [save_png(image, out_dir / name) for name, image in pictures.items()]
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
