@@ -22,7 +22,6 @@ from pathlib import Path
 import pandas as pd
 
 from experiments.report.encode import markdown_table, write_text
-from experiments.report.fp6 import N_BOOT
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData, load_sweeps, make_context, reference_for
 from ttc import evaluation as ev
@@ -42,7 +41,9 @@ class SweepMetrics:
     intervals: pd.DataFrame
 
 
-def sweep_metrics(sweep_dir: Path, ctx: Context, sensor: str, n_boot: int = N_BOOT) -> SweepMetrics:
+def sweep_metrics(
+    sweep_dir: Path, ctx: Context, sensor: str, n_boot: int = ev.N_BOOT
+) -> SweepMetrics:
     """Metrics and bootstrap intervals of every ok run of a sweep (sensor: camera / lidar)."""
     data = load_sweeps([sweep_dir])
     if data.frames.empty:

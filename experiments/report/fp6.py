@@ -16,8 +16,6 @@ from experiments.report.pictures import MAX_CAMERA_PICTURES, camera_picture
 from experiments.report.plots import plot_heatmap, plot_pareto, plot_top_bottom, save_figure
 from ttc import evaluation as ev
 
-#: Bootstrap replicates of the ranking's rank intervals (seed 0).
-N_BOOT = 500
 #: Way-off camera cases whose intermediate arrays are examined (≈ 30 ms each).
 MAX_EXAMINED = 60
 
@@ -73,7 +71,7 @@ def fp6_tables(
         t = examine_worst(t, data.runs, reference, ctx, MAX_EXAMINED)
     else:
         t["examined"] = False
-    return t, ev.camera_ranking(data.frames, t, reference, N_BOOT)
+    return t, ev.camera_ranking(data.frames, t, reference, ev.N_BOOT)
 
 
 def fp6_report(
@@ -141,8 +139,8 @@ def fp6_markdown(
         "Camera TTC of the lead vehicle per frame for every camera setting in the sweeps, "
         "judged against the reference TTC ([reference.md](reference.md)).",
         "",
-        f"**Ranking rule** (`ttc.evaluation.metrics.RANKING_RULE`): {ev.RANKING_RULE} Rank "
-        f"intervals: 90 % paired bootstrap over frames ({N_BOOT} replicates, seed 0).",
+        f"**Ranking rule** (`ttc.evaluation.RANKING_RULE`): {ev.RANKING_RULE} Rank "
+        f"intervals: 90 % paired bootstrap over frames ({ev.N_BOOT} replicates, seed 0).",
         "",
         f"## Best settings ({len(tied)} whose rank interval includes 1)",
         "",

@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from ttc import reasons
 from ttc.camera_ttc import distance_ratios
-from ttc.evaluation import bootstrap_rank_intervals, rank_runs, run_metrics
+from ttc.evaluation import N_BOOT, bootstrap_rank_intervals, rank_runs, run_metrics
 from ttc.evaluation.diagnosis import (
     CAMERA_AXES,
     code_texts,
@@ -257,7 +257,7 @@ def worst_order(t: pd.DataFrame, per_pair: int = PER_PAIR, turns: str = "primary
 
 
 def camera_ranking(
-    frames: pd.DataFrame, t: pd.DataFrame, reference: pd.DataFrame, n_boot: int = 500
+    frames: pd.DataFrame, t: pd.DataFrame, reference: pd.DataFrame, n_boot: int = N_BOOT
 ) -> pd.DataFrame:
     """Per dataset: metrics, rank and bootstrap rank interval (``n_boot`` replicates, seed 0)
     of every camera setting of the frame table ``t``, with its label and way-off count."""
