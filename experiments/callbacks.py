@@ -9,7 +9,9 @@ merge failed. ``skipped`` (an invalid detector × descriptor pair) is not a fail
 
 from __future__ import annotations
 
+import os
 import shutil
+import socket
 import sys
 import threading
 from pathlib import Path
@@ -25,7 +27,7 @@ from tqdm import tqdm
 from experiments.collect import summarise_sweep
 from experiments.config import data_root
 from experiments.run import record_crash
-from experiments.store import PROGRESS_DIR, StoreError
+from experiments.store import PROGRESS_DIR, PROGRESS_ENV, StoreError, progress_dir
 
 
 def count_jobs(config: DictConfig) -> int | None:
@@ -67,9 +69,10 @@ class SweepCallback(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
-        progress = sweep_dir / PROGRESS_DIR
+        progress = sweep_dir / PROGRESS_DIR / f"{socket.gethostname()}-{os.getpid()}"
         shutil.rmtree(progress, ignore_errors=True)
         progress.mkdir(parents=True, exist_ok=True)
+        os.environ[PROGRESS_ENV] = str(progress)  # inherited by the workers started after
         total = count_jobs(config)
         stop = threading.Event()
         thread = threading.Thread(target=self._poll, args=(progress, total, stop), daemon=True)
@@ -114,7 +117,7 @@ class SweepCallback(Callback):
             )
         except (StoreError, OSError) as exc:
             problems.append(f"merge failed, no {sweep_dir}/frames.parquet: {exc}")
-        progress = sweep_dir / PROGRESS_DIR
+        progress = progress_dir(sweep_dir)
         outcomes = [p.read_text() for p in progress.iterdir()] if progress.is_dir() else []
         if (failed := outcomes.count("failed")) > 0:
             problems.append(f"{failed} setting(s) failed (listed above); a re-run retries them")

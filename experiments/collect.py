@@ -15,7 +15,6 @@ import pandas as pd
 
 from experiments import store
 from experiments.reference_store import runs_reference
-from experiments.store import PROGRESS_DIR
 from ttc.evaluation import metrics
 from ttc.pipeline import SETTING_AXES
 
@@ -77,7 +76,7 @@ def summarise_sweep(
         f"settings: {len(runs)} total, {counts.get('ok', 0)} ok, "
         f"{counts.get('skipped', 0)} skipped, {counts.get('failed', 0)} failed"
     )
-    progress = sweep_dir / PROGRESS_DIR
+    progress = store.progress_dir(sweep_dir)
     if progress.is_dir():
         outcomes = pd.Series([p.read_text() for p in progress.iterdir()], dtype=str)
         print(

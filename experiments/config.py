@@ -206,10 +206,20 @@ def config_problems(cfg: DictConfig) -> list[str]:
     frames), and that the recording exists and holds the range's last frame.
     """
     problems = []
+    schemas = {
+        "detector": DETECTORS.get(cfg.detector.name),
+        "descriptor": DESCRIPTORS.get(cfg.descriptor.name),
+        **SINGLE_CLASS_GROUPS,
+    }
+    for group, schema in schemas.items():
+        try:
+            _to_object(cfg[group], schema)
+        except (ValueError, TypeError) as exc:
+            problems.append(f"{group}: {exc}")
     try:
-        settings_from_config(cfg)
+        _to_object(cfg.lidar.crop, LaneCropParams)
     except (ValueError, TypeError) as exc:
-        problems.append(str(exc))
+        problems.append(f"lidar.crop: {exc}")
     ds = cfg.dataset
     first, last, step = int(ds.first), int(ds.last), int(ds.step)
     if first < 0:

@@ -172,7 +172,7 @@ def record_crash(cfg: DictConfig, sweep_dir: Path, message: str) -> dict[str, An
 
 def mark_progress(sweep_dir: Path, record: dict[str, Any]) -> None:
     """Tell the sweep's progress bar and summary that this job is finished."""
-    marker = sweep_dir / store.PROGRESS_DIR / record["run_id"]
+    marker = store.progress_dir(sweep_dir) / record["run_id"]
     marker.parent.mkdir(parents=True, exist_ok=True)
     marker.write_text("resumed" if record.get("resumed") else str(record.get("status")))
 

@@ -43,9 +43,11 @@ except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process lo
 RUNS_DIR = "runs"
 FRAMES_FILE = "frames.parquet"
 RUNS_FILE = "runs.parquet"
-#: Per-invocation progress markers of a sweep (one file per finished job), read by the
-#: progress bar and the summary.
+#: Progress markers of a sweep (one file per finished job), read by the progress bar and the
+#: summary: ``.progress/<id of the sweep invocation>/``, named to the jobs by the variable
+#: :data:`PROGRESS_ENV`, so two sweeps into one folder count their own jobs.
 PROGRESS_DIR = ".progress"
+PROGRESS_ENV = "TTC_PROGRESS_DIR"
 COMPLETE_STATUSES = ("ok", "skipped")
 #: :func:`incomplete_reason` of a run never computed in this sweep folder.
 NO_RECORD = "no record"
@@ -97,6 +99,11 @@ def read_record(sweep_dir: Path, run_id: str) -> dict[str, Any] | None:
         return json.loads(record_path.read_text())
     except (OSError, ValueError):
         return None
+
+
+def progress_dir(sweep_dir: Path) -> Path:
+    """This sweep invocation's progress folder (``$TTC_PROGRESS_DIR`` when a sweep set it)."""
+    return Path(os.environ.get(PROGRESS_ENV) or Path(sweep_dir) / PROGRESS_DIR / "last")
 
 
 # -- input identities ----------------------------------------------------------------------
@@ -155,17 +162,24 @@ def incomplete_reason(sweep_dir: Path, run_id: str) -> str | None:
     rows_path, _ = run_paths(sweep_dir, run_id)
     if not record.get("rows_sha256") or "inputs" not in record:
         return "its record predates rows checksums and input identities"
-    try:
-        with rows_path.open("rb") as handle:
-            digest = hashlib.file_digest(handle, "sha256").hexdigest()
-    except OSError as exc:
-        return f"rows file {rows_path.name} unreadable ({exc.strerror})"
-    if digest != record["rows_sha256"]:
-        return f"rows file {rows_path.name} corrupt (SHA-256 differs from its record)"
+    if (problem := _rows_problem(rows_path, record["rows_sha256"])) is not None:
+        return f"rows file {rows_path.name} {problem}"
     changed = changed_inputs(record["inputs"])
     if changed:
         more = f" and {len(changed) - 1} more" if len(changed) > 1 else ""
         return f"input changed since it ran: {changed[0]}{more}"
+    return None
+
+
+def _rows_problem(rows_path: Path, sha256: str | None) -> str | None:
+    """Why a rows file does not match the checksum of its record (None: it does)."""
+    try:
+        with rows_path.open("rb") as handle:
+            digest = hashlib.file_digest(handle, "sha256").hexdigest()
+    except OSError as exc:
+        return f"unreadable ({exc.strerror})"
+    if sha256 and digest != sha256:
+        return "corrupt (SHA-256 differs from its record)"
     return None
 
 
@@ -266,12 +280,18 @@ def load_sweep(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(frames, runs)`` of a sweep, re-merged from ``runs/`` first when the merged files
     are missing, unreadable or stale (a run was added, recomputed or removed since).
 
-    Raises :class:`StoreError` naming the file when a run's rows file is corrupt or the sweep
-    folder has no ``runs/``.
+    Raises :class:`StoreError` naming the file when an ok run's rows file is missing or
+    corrupt (checked against its record's SHA-256 every time) or the sweep folder has no
+    ``runs/``.
     """
     sweep_dir = Path(sweep_dir)
     if not (sweep_dir / RUNS_DIR).is_dir():
         raise StoreError(sweep_dir, f"no {RUNS_DIR}/ folder: not a sweep folder")
+    for record in list_records(sweep_dir):
+        if record.get("status") == "ok":
+            rows_path, _ = run_paths(sweep_dir, record["run_id"])
+            if (problem := _rows_problem(rows_path, record.get("rows_sha256"))) is not None:
+                raise StoreError(rows_path, f"rows file {problem}")
     if merge_is_current(sweep_dir):
         try:
             return pd.read_parquet(sweep_dir / FRAMES_FILE), pd.read_parquet(sweep_dir / RUNS_FILE)
