@@ -20,7 +20,7 @@ import pytest
 
 from experiments import store
 from tests.conftest import PROJECT_ROOT
-from ttc import pipeline, reasons
+from ttc import reasons, stages
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS
 from ttc.frames import (
@@ -334,19 +334,19 @@ def test_8_cache_keys_chain_upstream_versions_and_libraries(kitti_dir, monkeypat
     frames = FrameRange(kitti_dir, 0, 1)
 
     def keys() -> dict[str, str]:
-        st = pipeline._FrameStages(settings(), frames, StageCache(None))
-        tasks = {name: getattr(st, name)(0) for name in pipeline.PER_FRAME_STAGES}
+        st = stages.FrameStages(settings(), frames, StageCache(None))
+        tasks = {name: getattr(st, name)(0) for name in stages.PER_FRAME_STAGES}
         return {**{n: t.key for n, t in tasks.items()}, "matches": st.matches(0, 1).key}
 
     base = keys()
-    monkeypatch.setitem(pipeline.STAGE_VERSIONS, "keypoints", 99)
+    monkeypatch.setitem(stages.STAGE_VERSIONS, "keypoints", 99)
     bumped = keys()
     assert {s for s in base if base[s] != bumped[s]} == {"keypoints", "descriptors", "matches"}
-    monkeypatch.setitem(pipeline.STAGE_VERSIONS, "keypoints", 1)
-    monkeypatch.setitem(pipeline.LIBRARY_VERSIONS, "opencv", "9.9.9")
+    monkeypatch.setitem(stages.STAGE_VERSIONS, "keypoints", 1)
+    monkeypatch.setitem(stages.LIBRARY_VERSIONS, "opencv", "9.9.9")
     assert all(base[s] != v for s, v in keys().items())
-    monkeypatch.setitem(pipeline.LIBRARY_VERSIONS, "opencv", pipeline.cv2.__version__)
-    monkeypatch.setitem(pipeline.LIBRARY_VERSIONS, "numpy", "0.0")
+    monkeypatch.setitem(stages.LIBRARY_VERSIONS, "opencv", stages.cv2.__version__)
+    monkeypatch.setitem(stages.LIBRARY_VERSIONS, "numpy", "0.0")
     assert all(base[s] != v for s, v in keys().items())
 
 
@@ -362,9 +362,7 @@ def test_8_objects_key_holds_model_files_identity(kitti_dir, tmp_path) -> None:
     s = Settings(detector=DETECTORS["fast"](), descriptor=DESCRIPTORS["brief"](), objects=params)
 
     def key() -> str:
-        return (
-            pipeline._FrameStages(s, FrameRange(kitti_dir, 0, 1), StageCache(None)).objects(0).key
-        )
+        return stages.FrameStages(s, FrameRange(kitti_dir, 0, 1), StageCache(None)).objects(0).key
 
     before = key()
     copies["weights"].unlink()
@@ -400,7 +398,7 @@ def test_9_decoded_images_are_bounded(kitti_dir, monkeypatch) -> None:
 
     alive: list[weakref.ref] = []
     most = [0]
-    real = pipeline.read_image
+    real = stages.read_image
 
     def tracked(path):
         image = real(path)
@@ -408,11 +406,11 @@ def test_9_decoded_images_are_bounded(kitti_dir, monkeypatch) -> None:
         most[0] = max(most[0], sum(ref() is not None for ref in alive))
         return image
 
-    monkeypatch.setattr(pipeline, "read_image", tracked)
+    monkeypatch.setattr(stages, "read_image", tracked)
     rows = run_setting(settings(), FrameRange(kitti_dir, 0, 18), StageCache(None))
     assert rows["frame"].nunique() == 18
     assert len(alive) == 19  # each image decoded once
-    assert most[0] <= pipeline.CHUNK_FRAMES + 1  # not all 19 at once
+    assert most[0] <= stages.CHUNK_FRAMES + 1  # not all 19 at once
 
 
 # -- 10. two identical sweeps at once ------------------------------------------------------

@@ -2,20 +2,9 @@
 
 :func:`run_setting` takes a :class:`Settings` (one value per axis) and a :class:`FrameRange`
 and returns one row per (frame pair, matched box pair); the lead vehicle's row has
-``is_lead=True``. The expensive stages go through a :class:`~ttc.cache.StageCache`:
-
-============  =======================================================  ==============
-stage         key                                                      content
-============  =======================================================  ==============
-objects       image file, objects params                               YOLO boxes
-lidar         scan file, lane crop                                     lane points
-keypoints     image file, detector params                              (N, 7) array
-descriptors   image file, detector + descriptor params                 kept kps, desc
-matches       both image files, detector, descriptor, matcher params   k=2 candidates
-============  =======================================================  ==============
-
-NN and kNN selection share the k=2 candidates, so the selector is not part of the matches key.
-``STAGE_VERSIONS`` is part of every key: bump a stage's number when its code changes results.
+``is_lead=True``. The expensive stages (objects, lidar, keypoints, descriptors, matches) go
+through a :class:`~ttc.cache.StageCache`; their keys and the chunked order they are produced in
+are in :mod:`ttc.stages`.
 """
 
 from __future__ import annotations
@@ -27,23 +16,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import pandas as pd
 
 from ttc import reasons
 from ttc.box_matching import BoxMatchingParams, count_shared_matches, match_boxes
-from ttc.cache import Lookup, StageCache, Task, cache_key
+from ttc.cache import Lookup, StageCache
 from ttc.camera_ttc import CameraTTCParams, camera_ttc
-from ttc.descriptors import check_pair, describe_keypoints, is_binary
+from ttc.descriptors import check_pair
 from ttc.frames import (
-    CAM_TO_CAM,
-    TIMESTAMP_FILES,
-    VELO_TO_CAM,
     Calibration,
     FrameDataError,
     check_frame_range,
-    file_identity,
     frame_files,
     frame_indices,
     frame_interval,
@@ -51,19 +35,22 @@ from ttc.frames import (
     pair_interval,
     read_frame_times,
     read_image,
-    read_lidar_scan,
     timestamps_file,
 )
 from ttc.keypoint_filter import KeypointFilterParams, filter_box_matches
-from ttc.keypoints import X, Y, detect_keypoints
-from ttc.lidar import LaneCropParams, assign_points_to_boxes, crop_to_lane, project_to_image
+from ttc.keypoints import X, Y
+from ttc.lidar import LaneCropParams, assign_points_to_boxes, project_to_image
 from ttc.lidar_ttc import LidarTTCParams, lidar_ttc
-from ttc.matching import MatcherParams, SelectorParams, knn_candidates, select_matches
-from ttc.objects import ObjectDetectorParams, detect_objects, model_identity
-
-STAGE_VERSIONS = {"objects": 1, "lidar": 1, "keypoints": 1, "descriptors": 1, "matches": 1}
-CACHED_STAGES = tuple(STAGE_VERSIONS)
-
+from ttc.matching import MatcherParams, SelectorParams, select_matches
+from ttc.objects import ObjectDetectorParams
+from ttc.stages import (  # noqa: F401 (re-exported: the stage table and inputs of a run)
+    CACHED_STAGES,
+    CHUNK_FRAMES,
+    LIBRARY_VERSIONS,
+    STAGE_VERSIONS,
+    input_files,
+    stream,
+)
 
 #: Field metadata of a :class:`Settings` field that is a sweep axis.
 AXIS = {"axis": True}
@@ -120,131 +107,6 @@ class FrameRange:
     def dt(self) -> float:
         """Seconds between two processed frames."""
         return frame_interval(self.step)
-
-
-def _params(obj: Any) -> dict[str, Any]:
-    return dataclasses.asdict(obj)
-
-
-#: Library versions in every cache key: a new OpenCV or numpy may change any stage's output.
-LIBRARY_VERSIONS = {"opencv": cv2.__version__, "numpy": np.__version__}
-#: Frames whose per-frame stages are resolved together (cooperative fill); the decoded images
-#: and stage arrays of at most this many frames (+1) are held at once.
-CHUNK_FRAMES = 8
-PER_FRAME_STAGES = ("objects", "lidar", "keypoints", "descriptors")
-
-
-class _FrameStages:
-    """Cache tasks of one job, created lazily and shared between the pairs that need them.
-
-    Each key chains the keys of the stages it is computed from (keypoints → descriptors →
-    matches), so a new version or parameter of an upstream stage reaches every downstream key.
-    """
-
-    def __init__(self, settings: Settings, frames: FrameRange, cache: StageCache) -> None:
-        self.settings, self.frames, self.cache = settings, frames, cache
-        self.binary = is_binary(settings.descriptor.name)
-        self._tasks: dict[tuple, Task] = {}
-        self._images: dict[int, np.ndarray] = {}
-        self._grays: dict[int, np.ndarray] = {}
-        self._model: list | None = None
-
-    def forget(self, keep: int) -> None:
-        """Drop the images and tasks (with their arrays) of every frame but ``keep``."""
-        self._images = {i: v for i, v in self._images.items() if i == keep}
-        self._grays = {i: v for i, v in self._grays.items() if i == keep}
-        self._tasks = {k: t for k, t in self._tasks.items() if k[1] == (keep,)}
-
-    def _image(self, index: int) -> np.ndarray:
-        if index not in self._images:
-            self._images[index] = read_image(frame_files(self.frames.sequence_dir, index).image)
-        return self._images[index]
-
-    def _gray(self, index: int) -> np.ndarray:
-        if index not in self._grays:
-            self._grays[index] = cv2.cvtColor(self._image(index), cv2.COLOR_BGR2GRAY)
-        return self._grays[index]
-
-    def _task(self, stage: str, ident: tuple, parts: Callable[[], tuple], compute) -> Task:
-        if (stage, ident) not in self._tasks:
-            key = cache_key(stage, STAGE_VERSIONS[stage], LIBRARY_VERSIONS, *parts())
-            self._tasks[(stage, ident)] = Task(stage, key, compute)
-        return self._tasks[(stage, ident)]
-
-    def _image_id(self, index: int) -> tuple:
-        return file_identity(frame_files(self.frames.sequence_dir, index).image)
-
-    def objects(self, index: int) -> Task:
-        params = self.settings.objects
-        if self._model is None:
-            self._model = model_identity(params)
-
-        def compute() -> dict:
-            det = detect_objects(self._image(index), params)
-            return {"class_id": det.class_id, "confidence": det.confidence, "roi": det.roi}
-
-        parts = lambda: (self._image_id(index), _params(params), self._model)  # noqa: E731
-        return self._task("objects", (index,), parts, compute)
-
-    def lidar(self, index: int) -> Task:
-        path = frame_files(self.frames.sequence_dir, index).scan
-        crop = self.settings.lane
-
-        def compute() -> dict:
-            scan = read_lidar_scan(path)
-            return {
-                "points": crop_to_lane(scan.points, crop),
-                "n_scan": np.int64(len(scan)),
-                "n_dropped": np.int64(scan.n_dropped),
-            }
-
-        parts = lambda: (file_identity(path), _params(crop))  # noqa: E731
-        return self._task("lidar", (index,), parts, compute)
-
-    def keypoints(self, index: int) -> Task:
-        params = self.settings.detector
-
-        def compute() -> dict:
-            return {"keypoints": detect_keypoints(self._gray(index), params)}
-
-        parts = lambda: (self._image_id(index), _params(params))  # noqa: E731
-        return self._task("keypoints", (index,), parts, compute)
-
-    def descriptors(self, index: int) -> Task:
-        det, desc = self.settings.detector, self.settings.descriptor
-        upstream = self.keypoints(index)
-
-        def compute() -> dict:
-            keypoints = self.cache.get(upstream).arrays["keypoints"]
-            kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
-            return {"keypoints": kept, "descriptors": descriptors}
-
-        parts = lambda: (upstream.key, _params(desc))  # noqa: E731
-        return self._task("descriptors", (index,), parts, compute)
-
-    def matches(self, prev: int, curr: int) -> Task:
-        s = self.settings
-        up_prev, up_curr = self.descriptors(prev), self.descriptors(curr)
-
-        def compute() -> dict:
-            d_prev = self.cache.get(up_prev).arrays["descriptors"]
-            d_curr = self.cache.get(up_curr).arrays["descriptors"]
-            idx, dist = knn_candidates(d_prev, d_curr, self.binary, s.matcher)
-            return {"idx": idx, "dist": dist}
-
-        parts = lambda: (up_prev.key, up_curr.key, _params(s.matcher))  # noqa: E731
-        return self._task("matches", (prev, curr), parts, compute)
-
-
-def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
-    """Every input file a run of ``settings`` on ``frames`` reads (some may not exist): the
-    calibration and timestamps files, each frame's image and scan, the object model files."""
-    seq = Path(frames.sequence_dir)
-    files = [seq / CAM_TO_CAM, seq / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
-    for index in frames.indices:
-        ff = frame_files(seq, index)
-        files += [ff.image, ff.scan]
-    return files + [Path(path) for path, _, _ in model_identity(settings.objects)]
 
 
 #: FP.2–FP.4 columns of a box pair that could not be evaluated (types as in a full row).
@@ -318,7 +180,7 @@ def run_setting(
     cache = cache if cache is not None else StageCache(None)
     calib = calibration or load_calibration(frames.sequence_dir, frames.projection)
     rows: list[dict[str, Any]] = []
-    for pairs, per_frame, matches, broken in _stream(settings, frames, cache, indices):
+    for pairs, per_frame, matches, broken in stream(settings, frames, cache, indices):
         for prev, curr in pairs:
             dt = pair_interval(times, prev, curr, frames.step)
             if (prev, curr) in matches:
@@ -327,56 +189,6 @@ def run_setting(
             else:
                 rows.append(_error_row(prev, curr, dt, broken.get(curr) or broken[prev]))
     return pd.DataFrame.from_records(rows)
-
-
-def _resolve_frames(
-    stages: _FrameStages,
-    todo: list[int],
-    per_frame: dict[str, dict[int, Lookup]],
-    broken: dict[int, Exception],
-) -> None:
-    """Resolve the per-frame stages of ``todo`` into ``per_frame``; unreadable frames (a
-    missing or damaged file, found when the key or the entry is made) go to ``broken``."""
-    for name in PER_FRAME_STAGES:
-        tasks, owners = [], []
-        for i in todo:
-            if i in broken:
-                continue
-            try:
-                tasks.append(getattr(stages, name)(i))
-                owners.append(i)
-            except FrameDataError as exc:
-                broken[i] = exc
-        found = stages.cache.resolve(tasks, errors=(FrameDataError,))
-        for i, out in zip(owners, found, strict=True):
-            if isinstance(out, Exception):
-                broken[i] = out
-            else:
-                per_frame[name][i] = out
-
-
-def _stream(settings: Settings, frames: FrameRange, cache: StageCache, indices: list[int]):
-    """Yield ``(pairs, per-frame lookups, pair matches, broken frames)`` chunk by chunk.
-
-    Cooperative fill within a chunk: per-frame stages first, then the pairs ending in the
-    chunk; entries another worker is computing right now are deferred (see
-    :meth:`StageCache.resolve`). After a chunk only its last frame's data is kept.
-    """
-    stages = _FrameStages(settings, frames, cache)
-    per_frame: dict[str, dict[int, Lookup]] = {name: {} for name in PER_FRAME_STAGES}
-    broken: dict[int, Exception] = {}
-    all_pairs = list(_pairs(indices))
-    for start in range(0, len(indices), CHUNK_FRAMES):
-        todo = indices[start : start + CHUNK_FRAMES]
-        _resolve_frames(stages, todo, per_frame, broken)
-        pairs = [(p, c) for p, c in all_pairs if c in todo]
-        good = [(p, c) for p, c in pairs if p not in broken and c not in broken]
-        found = cache.resolve([stages.matches(p, c) for p, c in good])
-        yield pairs, per_frame, dict(zip(good, found, strict=True)), broken
-        stages.forget(keep=todo[-1])
-        for lookups in per_frame.values():
-            for i in [i for i in lookups if i != todo[-1]]:
-                del lookups[i]
 
 
 @dataclass
@@ -413,7 +225,7 @@ def pair_detail(
     pair = dataclasses.replace(frames, first=prev, last=curr, step=curr - prev)
     check_frame_range(frames.sequence_dir, [prev, curr])
     dt = pair_interval(read_frame_times(frames.sequence_dir), prev, curr, curr - prev)
-    _, per_frame, matches, broken = next(_stream(settings, pair, cache, [prev, curr]))
+    _, per_frame, matches, broken = next(stream(settings, pair, cache, [prev, curr]))
     if broken:
         raise next(iter(broken.values()))
     detail: dict[str, Any] = {}

@@ -1,0 +1,228 @@
+"""The cached stages of one setting (objects, lidar, keypoints, descriptors, matches) and the
+order they are produced in: the cache keys, the chunked streaming over a frame range, and the
+list of input files a run reads. Used by :mod:`ttc.pipeline`.
+
+============  ==========================================================  ==============
+stage         key (besides its version and the OpenCV and numpy versions)  content
+============  ==========================================================  ==============
+objects       image file, objects params, model files                      YOLO boxes
+lidar         scan file, lane crop                                         lane points
+keypoints     image file, detector params                                  (N, 7) array
+descriptors   keypoints key, descriptor params                             kept kps, desc
+matches       both descriptors keys, matcher params                        k=2 candidates
+============  ==========================================================  ==============
+
+A file is named by its identity (resolved path, size, mtime). NN and kNN selection share the
+k=2 candidates, so the selector is not part of the matches key. Bump a stage's number in
+``STAGE_VERSIONS`` when its code changes results: every key built on it changes too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import numpy as np
+
+from ttc.cache import Lookup, StageCache, Task, cache_key
+from ttc.descriptors import describe_keypoints, is_binary
+from ttc.frames import (
+    CAM_TO_CAM,
+    TIMESTAMP_FILES,
+    VELO_TO_CAM,
+    FrameDataError,
+    file_identity,
+    frame_files,
+    read_image,
+    read_lidar_scan,
+)
+from ttc.keypoints import detect_keypoints
+from ttc.lidar import crop_to_lane
+from ttc.matching import knn_candidates
+from ttc.objects import detect_objects, model_identity
+
+if TYPE_CHECKING:
+    from ttc.pipeline import FrameRange, Settings
+
+STAGE_VERSIONS = {"objects": 1, "lidar": 1, "keypoints": 1, "descriptors": 1, "matches": 1}
+CACHED_STAGES = tuple(STAGE_VERSIONS)
+
+
+def _params(obj: Any) -> dict[str, Any]:
+    return dataclasses.asdict(obj)
+
+
+#: Library versions in every cache key: a new OpenCV or numpy may change any stage's output.
+LIBRARY_VERSIONS = {"opencv": cv2.__version__, "numpy": np.__version__}
+#: Frames whose per-frame stages are resolved together (cooperative fill); the decoded images
+#: and stage arrays of at most this many frames (+1) are held at once.
+CHUNK_FRAMES = 8
+PER_FRAME_STAGES = ("objects", "lidar", "keypoints", "descriptors")
+
+
+class FrameStages:
+    """Cache tasks of one job, created lazily and shared between the pairs that need them.
+
+    Each key chains the keys of the stages it is computed from (keypoints → descriptors →
+    matches), so a new version or parameter of an upstream stage reaches every downstream key.
+    """
+
+    def __init__(self, settings: Settings, frames: FrameRange, cache: StageCache) -> None:
+        self.settings, self.frames, self.cache = settings, frames, cache
+        self.binary = is_binary(settings.descriptor.name)
+        self._tasks: dict[tuple, Task] = {}
+        self._images: dict[int, np.ndarray] = {}
+        self._grays: dict[int, np.ndarray] = {}
+        self._model: list | None = None
+
+    def forget(self, keep: int) -> None:
+        """Drop the images and tasks (with their arrays) of every frame but ``keep``."""
+        self._images = {i: v for i, v in self._images.items() if i == keep}
+        self._grays = {i: v for i, v in self._grays.items() if i == keep}
+        self._tasks = {k: t for k, t in self._tasks.items() if k[1] == (keep,)}
+
+    def _image(self, index: int) -> np.ndarray:
+        if index not in self._images:
+            self._images[index] = read_image(frame_files(self.frames.sequence_dir, index).image)
+        return self._images[index]
+
+    def _gray(self, index: int) -> np.ndarray:
+        if index not in self._grays:
+            self._grays[index] = cv2.cvtColor(self._image(index), cv2.COLOR_BGR2GRAY)
+        return self._grays[index]
+
+    def _task(self, stage: str, ident: tuple, parts: Callable[[], tuple], compute) -> Task:
+        if (stage, ident) not in self._tasks:
+            key = cache_key(stage, STAGE_VERSIONS[stage], LIBRARY_VERSIONS, *parts())
+            self._tasks[(stage, ident)] = Task(stage, key, compute)
+        return self._tasks[(stage, ident)]
+
+    def _image_id(self, index: int) -> tuple:
+        return file_identity(frame_files(self.frames.sequence_dir, index).image)
+
+    def objects(self, index: int) -> Task:
+        params = self.settings.objects
+        if self._model is None:
+            self._model = model_identity(params)
+
+        def compute() -> dict:
+            det = detect_objects(self._image(index), params)
+            return {"class_id": det.class_id, "confidence": det.confidence, "roi": det.roi}
+
+        parts = lambda: (self._image_id(index), _params(params), self._model)  # noqa: E731
+        return self._task("objects", (index,), parts, compute)
+
+    def lidar(self, index: int) -> Task:
+        path = frame_files(self.frames.sequence_dir, index).scan
+        crop = self.settings.lane
+
+        def compute() -> dict:
+            scan = read_lidar_scan(path)
+            return {
+                "points": crop_to_lane(scan.points, crop),
+                "n_scan": np.int64(len(scan)),
+                "n_dropped": np.int64(scan.n_dropped),
+            }
+
+        parts = lambda: (file_identity(path), _params(crop))  # noqa: E731
+        return self._task("lidar", (index,), parts, compute)
+
+    def keypoints(self, index: int) -> Task:
+        params = self.settings.detector
+
+        def compute() -> dict:
+            return {"keypoints": detect_keypoints(self._gray(index), params)}
+
+        parts = lambda: (self._image_id(index), _params(params))  # noqa: E731
+        return self._task("keypoints", (index,), parts, compute)
+
+    def descriptors(self, index: int) -> Task:
+        det, desc = self.settings.detector, self.settings.descriptor
+        upstream = self.keypoints(index)
+
+        def compute() -> dict:
+            keypoints = self.cache.get(upstream).arrays["keypoints"]
+            kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
+            return {"keypoints": kept, "descriptors": descriptors}
+
+        parts = lambda: (upstream.key, _params(desc))  # noqa: E731
+        return self._task("descriptors", (index,), parts, compute)
+
+    def matches(self, prev: int, curr: int) -> Task:
+        s = self.settings
+        up_prev, up_curr = self.descriptors(prev), self.descriptors(curr)
+
+        def compute() -> dict:
+            d_prev = self.cache.get(up_prev).arrays["descriptors"]
+            d_curr = self.cache.get(up_curr).arrays["descriptors"]
+            idx, dist = knn_candidates(d_prev, d_curr, self.binary, s.matcher)
+            return {"idx": idx, "dist": dist}
+
+        parts = lambda: (up_prev.key, up_curr.key, _params(s.matcher))  # noqa: E731
+        return self._task("matches", (prev, curr), parts, compute)
+
+
+def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
+    """Every input file a run of ``settings`` on ``frames`` reads (some may not exist): the
+    calibration and timestamps files, each frame's image and scan, the object model files."""
+    seq = Path(frames.sequence_dir)
+    files = [seq / CAM_TO_CAM, seq / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
+    for index in frames.indices:
+        ff = frame_files(seq, index)
+        files += [ff.image, ff.scan]
+    return files + [Path(path) for path, _, _ in model_identity(settings.objects)]
+
+
+def resolve_frames(
+    stages: FrameStages,
+    todo: list[int],
+    per_frame: dict[str, dict[int, Lookup]],
+    broken: dict[int, Exception],
+) -> None:
+    """Resolve the per-frame stages of ``todo`` into ``per_frame``; unreadable frames (a
+    missing or damaged file, found when the key or the entry is made) go to ``broken``."""
+    for name in PER_FRAME_STAGES:
+        tasks, owners = [], []
+        for i in todo:
+            if i in broken:
+                continue
+            try:
+                tasks.append(getattr(stages, name)(i))
+                owners.append(i)
+            except FrameDataError as exc:
+                broken[i] = exc
+        found = stages.cache.resolve(tasks, errors=(FrameDataError,))
+        for i, out in zip(owners, found, strict=True):
+            if isinstance(out, Exception):
+                broken[i] = out
+            else:
+                per_frame[name][i] = out
+
+
+def stream(
+    settings: Settings, frames: FrameRange, cache: StageCache, indices: list[int]
+) -> Iterator[tuple[list, dict, dict, dict]]:
+    """Yield ``(pairs, per-frame lookups, pair matches, broken frames)`` chunk by chunk.
+
+    Cooperative fill within a chunk: per-frame stages first, then the pairs ending in the
+    chunk; entries another worker is computing right now are deferred (see
+    :meth:`StageCache.resolve`). After a chunk only its last frame's data is kept.
+    """
+    stages = FrameStages(settings, frames, cache)
+    per_frame: dict[str, dict[int, Lookup]] = {name: {} for name in PER_FRAME_STAGES}
+    broken: dict[int, Exception] = {}
+    all_pairs = list(zip(indices[:-1], indices[1:], strict=True))
+    for start in range(0, len(indices), CHUNK_FRAMES):
+        todo = indices[start : start + CHUNK_FRAMES]
+        resolve_frames(stages, todo, per_frame, broken)
+        pairs = [(p, c) for p, c in all_pairs if c in todo]
+        good = [(p, c) for p, c in pairs if p not in broken and c not in broken]
+        found = cache.resolve([stages.matches(p, c) for p, c in good])
+        yield pairs, per_frame, dict(zip(good, found, strict=True)), broken
+        stages.forget(keep=todo[-1])
+        for lookups in per_frame.values():
+            for i in [i for i in lookups if i != todo[-1]]:
+                del lookups[i]
