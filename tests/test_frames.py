@@ -15,6 +15,8 @@ from ttc.frames import (
     frame_interval,
     load_calibration,
     load_frame,
+    pair_interval,
+    read_frame_times,
     read_image,
     read_lidar_scan,
 )
@@ -118,3 +120,56 @@ def test_missing_calibration_entry(broken_dir: Path) -> None:
     (broken_dir / "calib_velo_to_cam.txt").unlink()
     with pytest.raises(FrameDataError, match="calib_velo_to_cam.txt: calibration file not found"):
         load_calibration(broken_dir, "P_rect_00")
+
+
+# -- frame times from KITTI timestamps.txt -------------------------------------------------
+def kitti_times(n: int, step_ns: int, start: str = "2011-09-26 13:02:44.339690445") -> str:
+    """``n`` KITTI timestamp lines ``step_ns`` nanoseconds apart."""
+    import datetime as dt
+
+    date, frac = start.split(".")
+    base = dt.datetime.fromisoformat(date)
+    lines = []
+    for i in range(n):
+        ns = int(frac) + i * step_ns
+        when = base + dt.timedelta(seconds=ns // 1_000_000_000)
+        lines.append(f"{when:%Y-%m-%d %H:%M:%S}.{ns % 1_000_000_000:09d}")
+    return "\n".join(lines) + "\n"
+
+
+def test_no_timestamps_file_means_none(kitti_dir: Path) -> None:
+    assert read_frame_times(kitti_dir) is None  # our copy of the recording has none
+
+
+def test_frame_times_relative_to_frame_0_lidar_preferred(tmp_path: Path) -> None:
+    (tmp_path / "image_02").mkdir()
+    (tmp_path / "velodyne_points").mkdir()
+    (tmp_path / "image_02" / "timestamps.txt").write_text(kitti_times(4, 50_000_000))
+    assert read_frame_times(tmp_path).tolist() == [0.0, 0.05, 0.1, 0.15]  # camera alone
+    (tmp_path / "velodyne_points" / "timestamps.txt").write_text(kitti_times(4, 103_456_789))
+    times = read_frame_times(tmp_path)
+    np.testing.assert_allclose(
+        times, [0.0, 0.103456789, 0.206913578, 0.310370367], rtol=0, atol=1e-12
+    )
+    assert pair_interval(times, 1, 2) == 0.103456789
+    assert pair_interval(None, 1, 3, step=2) == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize(
+    ("line", "problem"),
+    [
+        ("2011-09-26 13:02:44,539690445", "line 3: malformed timestamp '2011-09-26 13:02:44,539690445'"),
+        ("2011-09-26 13:02:61.000000000", "line 3: malformed timestamp"),
+        ("", "line 3: malformed timestamp ''"),
+        ("2011-09-26 13:02:44.439690445", "line 3: time '2011-09-26 13:02:44.439690445' is not after line 2's"),
+    ],
+)  # fmt: skip
+def test_malformed_or_non_increasing_timestamps_name_file_and_line(tmp_path, line, problem):
+    path = tmp_path / "velodyne_points" / "timestamps.txt"
+    path.parent.mkdir()
+    lines = kitti_times(4, 100_000_000).splitlines()
+    lines[2] = line
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(FrameDataError) as info:
+        read_frame_times(tmp_path)
+    assert str(info.value).startswith(f"{path}: {problem}")

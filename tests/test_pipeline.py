@@ -109,3 +109,30 @@ def test_broken_frame_is_a_row_not_a_crash(kitti_dir: Path, tmp_path: Path) -> N
         assert lead.loc[frame, "lidar_reason"] == reasons.FRAME_ERROR
         assert "0000000002.bin" in lead.loc[frame, "error"]
     check_frame_columns(rows, core_only=True)
+
+
+@pytest.mark.parametrize("step_ns", [100_000_000, 200_000_000])
+def test_real_frame_times_set_dt(kitti_dir: Path, tmp_path: Path, cache_dir: Path, step_ns) -> None:
+    """With a timestamps file 0.1 s apart the TTCs are today's; 0.2 s apart doubles them."""
+    from tests.test_frames import kitti_times
+    from ttc.frames import CAM_TO_CAM, VELO_TO_CAM
+
+    for index in range(4):
+        for src in (frame_files(kitti_dir, index).image, frame_files(kitti_dir, index).scan):
+            dst = tmp_path / src.relative_to(kitti_dir)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            dst.symlink_to(src)
+    for name in (CAM_TO_CAM, VELO_TO_CAM):
+        (tmp_path / name).symlink_to(kitti_dir / name)
+    (tmp_path / "velodyne_points" / "timestamps.txt").write_text(kitti_times(4, step_ns))
+    nominal = run_setting(settings(), FrameRange(kitti_dir, 0, 3), StageCache(cache_dir))
+    timed = run_setting(settings(), FrameRange(tmp_path, 0, 3), StageCache(cache_dir))
+    factor = step_ns / 100_000_000
+    assert (timed["dt"] == 0.1 * factor).all() and (nominal["dt"] == 0.1).all()
+    for column in ("ttc_lidar", "ttc_camera"):
+        expected = nominal[column] * factor
+        if factor == 1:
+            pd.testing.assert_series_equal(timed[column], nominal[column])  # bit for bit
+        np.testing.assert_allclose(timed[column], expected, rtol=1e-12)
+        assert np.isfinite(timed[column]).sum() >= 3
+    pd.testing.assert_series_equal(timed["lidar_reason"], nominal["lidar_reason"])
