@@ -10,8 +10,8 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from experiments.config import register_configs
-from hydra_plugins.ttc_launcher import JobComposer
-from hydra_plugins.ttc_sweeper import representative_jobs
+from hydra_plugins.ttc_launcher import JobComposer, worker_death
+from hydra_plugins.ttc_sweeper import group_combination_jobs, representative_jobs
 from tests.conftest import PROJECT_ROOT
 
 
@@ -68,3 +68,26 @@ def test_validation_jobs_cover_every_value_once_per_key() -> None:
     assert len(jobs) == 3
     for position in range(3):
         assert {job[position] for job in jobs} == {job[position] for job in batch}
+
+
+def test_every_combination_of_the_dataset_overrides_is_validated() -> None:
+    batch = [list(j) for j in itertools.product(("detector=fast", "detector=orb"),
+                                                ("dataset.first=0", "dataset.first=3"),
+                                                ("dataset.last=2", "dataset.last=5"))]  # fmt: skip
+    jobs = group_combination_jobs(batch, "dataset")
+    assert len(jobs) == 4  # (first, last) pairs; the detector stays the first job's
+    assert {tuple(j[1:]) for j in jobs} == {tuple(j[1:]) for j in batch}
+    assert {j[0] for j in jobs} == {"detector=fast"}
+    # the cheap validation misses the (3, 2) pair; this one holds it
+    assert ["detector=fast", "dataset.first=3", "dataset.last=2"] not in representative_jobs(batch)
+    assert ["detector=fast", "dataset.first=3", "dataset.last=2"] in jobs
+
+
+def test_worker_death_names_the_signal() -> None:
+    from joblib.externals.loky.process_executor import TerminatedWorkerError
+
+    exc = TerminatedWorkerError(
+        "A worker process managed by the executor was unexpectedly terminated. This could be "
+        "caused by a segmentation fault ...\n\nThe exit codes of the workers are {SIGKILL(-9)}"
+    )
+    assert worker_death(exc).startswith("worker process died (SIGKILL(-9)): killed by a signal")
