@@ -7,10 +7,12 @@ Examples::
     python -m experiments.run -m detector=fast,orb matcher=glob(*) sweep_name=mine
 
 One job = one setting: its rows go to ``<sweep>/runs/<run_id>.parquet`` and its record
-(resolved config, code and package versions, timings, status) to ``<run_id>.json``. A run
-whose record already says ``ok`` or ``skipped`` is not computed again (resume). Invalid
+(resolved config, code and package versions, timings, status, rows checksum, identities of
+the input files read) to ``<run_id>.json``. A complete run (:func:`store.incomplete_reason`)
+is not computed again (resume); any other is recomputed with a line saying why. Invalid
 detector × descriptor pairs are recorded as ``skipped``, any other exception as ``failed``:
-neither stops a sweep.
+neither stops a sweep. A single run whose setting failed exits 1; a sweep exits 1 at its end
+when a setting failed (:mod:`experiments.callbacks`).
 """
 
 from __future__ import annotations
