@@ -72,13 +72,15 @@ def log_sweep(
     sweep_dir: Path,
     tracking_uri: str,
     experiment: str = "ttc-bench",
+    artifact_location: str | None = None,
     data_dir: Path | None = None,
     cache_dir: Path | None = None,
 ) -> str:
     """Log the sweep in ``sweep_dir`` to MLflow at ``tracking_uri``; return the parent run id.
 
-    ``data_dir`` / ``cache_dir``: where the reference's scans and cache are (default: the
-    configured ones).
+    ``artifact_location``: where a new ``experiment`` keeps its artifacts (MLflow's default
+    for a database store is ``./mlruns`` in the working directory); ``data_dir`` /
+    ``cache_dir``: where the reference's scans and cache are (default: the configured ones).
     """
     mlflow = _mlflow()
     from mlflow.entities import Metric, Param, RunTag  # noqa: PLC0415
@@ -89,7 +91,11 @@ def log_sweep(
     metrics = metrics.set_index("run_id") if "run_id" in metrics else metrics
     client = mlflow.MlflowClient(tracking_uri=tracking_uri)
     found = client.get_experiment_by_name(experiment)
-    experiment_id = found.experiment_id if found else client.create_experiment(experiment)
+    experiment_id = (
+        found.experiment_id
+        if found
+        else client.create_experiment(experiment, artifact_location=artifact_location)
+    )
     now = int(time.time() * 1000)
 
     counts = runs["status"].value_counts().to_dict() if "status" in runs else {}
@@ -136,9 +142,12 @@ class MLflowCallback(Callback):
     """Hydra callback: log the sweep to MLflow when it ends (:func:`log_sweep`). A tracking
     failure is reported and does not change the sweep's own outcome."""
 
-    def __init__(self, tracking_uri: str, experiment: str = "ttc-bench") -> None:
+    def __init__(
+        self, tracking_uri: str, experiment: str = "ttc-bench", artifacts: str | None = None
+    ) -> None:
         self.tracking_uri = tracking_uri
         self.experiment = experiment
+        self.artifacts = artifacts
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
@@ -147,6 +156,7 @@ class MLflowCallback(Callback):
                 sweep_dir,
                 self.tracking_uri,
                 self.experiment,
+                self.artifacts,
                 data_dir=data_root(config),
                 cache_dir=Path(str(config.cache.dir)),
             )

@@ -65,3 +65,9 @@ def test_child_runs_carry_axes_metrics_record_and_rows(tracked) -> None:
         record = json.loads(Path(local).read_text())
         assert record["run_id"] == child.data.tags["ttc.run_id"] and record["status"] == "ok"
         assert child.info.status == "FINISHED"
+
+
+def test_artifacts_stay_beside_the_sweeps_not_in_the_working_directory(tracked) -> None:
+    sweep_dir, _, _ = tracked
+    assert list((sweep_dir.parent / "mlartifacts").rglob("record.json"))
+    assert not (PROJECT_ROOT / "mlruns").exists()
