@@ -20,6 +20,7 @@ import pytest
 from ttc.descriptors import (
     DESCRIPTORS,
     INVALID_PAIRS,
+    RUBRIC_DESCRIPTORS,
     InvalidCombinationError,
     check_pair,
     describe_keypoints,
@@ -33,6 +34,7 @@ from ttc.keypoints import (
     KEYPOINT_COLUMNS,
     OCTAVE,
     RESPONSE,
+    RUBRIC_DETECTORS,
     SIZE,
     FastParams,
     HarrisParams,
@@ -75,10 +77,11 @@ def grays(kitti_dir: Path) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def keypoints(grays) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Keypoints of frames 0 and 1 for every detector with default parameters."""
+    """Keypoints of frames 0 and 1 for every rubric detector with default parameters (the
+    other detectors: ``tests/test_feature_zoo.py``)."""
     return {
-        name: tuple(detect_keypoints(g, params()) for g in grays)
-        for name, params in DETECTORS.items()
+        name: tuple(detect_keypoints(g, DETECTORS[name]()) for g in grays)
+        for name in RUBRIC_DETECTORS
     }
 
 
@@ -114,9 +117,10 @@ def candidates(described) -> Callable[[str, str, str], tuple[np.ndarray, np.ndar
 
 def test_pair_table_has_35_valid_and_7_invalid() -> None:
     assert len(valid_pairs()) == 35 and len(set(valid_pairs())) == 35
-    assert set(INVALID_PAIRS) == {(d, "akaze") for d in DETECTORS if d != "akaze"} | {
-        ("sift", "orb")
-    }
+    rubric = {(d, e) for d in RUBRIC_DETECTORS for e in RUBRIC_DESCRIPTORS}
+    assert set(INVALID_PAIRS) & rubric == {
+        (d, "akaze") for d in RUBRIC_DETECTORS if d != "akaze"
+    } | {("sift", "orb")}
     assert not set(valid_pairs()) & set(INVALID_PAIRS)
 
 
@@ -192,10 +196,12 @@ def test_array_keypoint_round_trip_keeps_all_fields(keypoints) -> None:
 
 def test_detection_is_deterministic_and_sane(grays, keypoints) -> None:
     h, w = grays[0].shape
-    for name, params in DETECTORS.items():
+    for name in RUBRIC_DETECTORS:
         kps = keypoints[name][0]
         assert len(kps) > 50, name
-        np.testing.assert_array_equal(detect_keypoints(grays[0], params()), kps, err_msg=name)
+        np.testing.assert_array_equal(
+            detect_keypoints(grays[0], DETECTORS[name]()), kps, err_msg=name
+        )
         assert kps[:, 0].min() >= 0 and kps[:, 0].max() < w and kps[:, 1].max() < h, name
         assert np.all(kps[:, SIZE] > 0), name
 
@@ -255,10 +261,15 @@ def test_missing_opencv_factory_names_the_package() -> None:
 # --- descriptors ---------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("descriptor", list(DESCRIPTORS))
+WIDTHS = {"brisk": 64, "brief": 32, "orb": 32, "freak": 64, "akaze": 61, "sift": 128,
+          "beblid": 64, "teblid": 32, "daisy": 200, "latch": 32, "lucid": 27, "boostdesc": 32,
+          "vgg": 120}  # fmt: skip
+
+
+@pytest.mark.parametrize("descriptor", list(WIDTHS))
 def test_empty_keypoints_give_empty_arrays(grays, descriptor: str) -> None:
     kps, desc = describe_keypoints(grays[0], np.empty((0, 7)), "akaze", DESCRIPTORS[descriptor]())
-    width = {"brisk": 64, "brief": 32, "orb": 32, "freak": 64, "akaze": 61, "sift": 128}
+    width = WIDTHS
     assert kps.shape == (0, 7) and desc.shape == (0, width[descriptor])
     assert desc.dtype == (np.uint8 if is_binary(descriptor) else np.float32)
 

@@ -1,4 +1,4 @@
-"""Keypoint descriptors: six OpenCV extractors behind one call, and which pairs are valid.
+"""Keypoint descriptors: fourteen OpenCV extractors behind one call, and which pairs are valid.
 
 Each descriptor has a frozen parameter dataclass (plain fields, usable as a Hydra
 structured-config schema) whose ``name`` selects it in :data:`DESCRIPTORS` and in
@@ -17,8 +17,11 @@ crashing (or trying to allocate 70 GB). What OpenCV 4.14 does with them on KITTI
   ORB reads SIFT's packed ``octave`` (up to ~1.7e7) as a pyramid level and sizes its pyramid
   by it.
 
-Every other pair (35 of 42) gives descriptors on KITTI frames 0 and 1 (checked by
-``tests/test_features.py``).
+Every other pair of the rubric's (35 of 42) gives descriptors on KITTI frames 0 and 1 (checked
+by ``tests/test_features.py``). The eight descriptors beyond the rubric are in
+:mod:`ttc.descriptors_extra`; what their pairs do is listed at :data:`INVALID_PAIRS` and checked
+on every pair by ``tests/test_feature_zoo.py``. A detector or descriptor the installed OpenCV
+lacks raises :class:`FeatureUnavailableError` (a skip, like an invalid pair) before any work.
 """
 
 from __future__ import annotations
@@ -30,9 +33,18 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ttc.descriptors_extra import (
+    COLOUR_DESCRIPTORS,
+    EXTRA_DESCRIPTORS,
+    EXTRA_EXTRACTORS,
+    EXTRA_FLOAT_DESCRIPTORS,
+    descriptor_available,
+)
+from ttc.detectors_extra import detector_available
 from ttc.keypoints import (
     AKAZE_DIFFUSIVITIES,
     DETECTORS,
+    RUBRIC_DETECTORS,
     array_to_keypoints,
     check_gray,
     empty_keypoints,
@@ -43,6 +55,7 @@ from ttc.keypoints import (
     require_name,
     require_positive,
 )
+from ttc.plugins import USER, CustomDescriptorParams, describe_custom
 
 
 @dataclass(frozen=True)
@@ -150,6 +163,9 @@ class SiftDescriptorParams:
         require_positive(n_octave_layers=self.n_octave_layers, sigma=self.sigma)
 
 
+#: The rubric's descriptors (FP.6's grid).
+RUBRIC_DESCRIPTORS: tuple[str, ...] = ("brisk", "brief", "orb", "freak", "akaze", "sift")
+
 DESCRIPTORS: dict[str, type] = {
     "brisk": BriskDescriptorParams,
     "brief": BriefDescriptorParams,
@@ -157,9 +173,13 @@ DESCRIPTORS: dict[str, type] = {
     "freak": FreakDescriptorParams,
     "akaze": AkazeDescriptorParams,
     "sift": SiftDescriptorParams,
+    **EXTRA_DESCRIPTORS,
+    USER: CustomDescriptorParams,
 }
+#: The descriptors beyond the rubric (OpenCV's other descriptors).
+EXTRA_DESCRIPTOR_NAMES: tuple[str, ...] = tuple(EXTRA_DESCRIPTORS)
 
-FLOAT_DESCRIPTORS = frozenset({"sift"})
+FLOAT_DESCRIPTORS = frozenset({"sift"}) | EXTRA_FLOAT_DESCRIPTORS
 
 _AKAZE_REASON = (
     "the AKAZE descriptor needs AKAZE keypoints: it reads the scale-space level from class_id, "
@@ -170,10 +190,29 @@ _SIFT_ORB_REASON = (
     "(tries to allocate ~70 GB)"
 )
 
+_KAZE_REASON = (
+    "the KAZE descriptor needs KAZE keypoints: it reads the scale-space level from class_id "
+    "(OpenCV asserts on class_id for keypoints without one; on AKAZE keypoints, whose levels "
+    "differ, 26 % of the descriptor values are NaN and nothing matches)"
+)
+_MSD_SIFT_REASON = (
+    "the SIFT descriptor reads MSD's octave (its scale index) as SIFT's packed octave and "
+    "fails inside OpenCV (resize asserts inv_scale_x > 0)"
+)
+#: Invalid pairs with the descriptors and detectors beyond the rubric, as found on KITTI
+#: frames 0 and 1 by trying every pair (OpenCV 4.14). LUCID works with every detector but
+#: matches poorly here (12-21 % of its kNN matches move < 30 px, against > 95 % for the
+#: others): it is made for colour images and gets the grey frame in three channels.
+EXTRA_INVALID_PAIRS: dict[tuple[str, str], str] = {
+    **{(det, "kaze"): _KAZE_REASON for det in DETECTORS if det != "kaze"},
+    ("msd", "sift"): _MSD_SIFT_REASON,
+}
+
 #: (detector, descriptor) → why the pair cannot work. The one table of invalid pairs.
 INVALID_PAIRS: dict[tuple[str, str], str] = {
     **{(det, "akaze"): _AKAZE_REASON for det in DETECTORS if det != "akaze"},
     ("sift", "orb"): _SIFT_ORB_REASON,
+    **EXTRA_INVALID_PAIRS,
 }
 
 
@@ -185,11 +224,33 @@ class InvalidCombinationError(ValueError):
         super().__init__(f"detector {detector!r} with descriptor {descriptor!r}: {reason}")
 
 
+class FeatureUnavailableError(InvalidCombinationError):
+    """The installed OpenCV lacks the detector or the descriptor of a pair (a skip too)."""
+
+
+def unavailable_reason(detector: str, descriptor: str) -> str | None:
+    """Why the installed OpenCV cannot run the pair (None: it can)."""
+    missing = [f"detector {detector!r}"] if not detector_available(detector) else []
+    if not descriptor_available(descriptor):
+        missing.append(f"descriptor {descriptor!r}")
+    if not missing:
+        return None
+    return f"OpenCV {cv2.__version__} lacks the {' and the '.join(missing)} (unavailable)"
+
+
 def is_binary(descriptor_name: str) -> bool:
-    """True for binary (uint8, Hamming) descriptors, False for float (L2) ones."""
+    """True for binary (uint8, Hamming) descriptors, False for float (L2) ones (by name; a
+    ``custom`` descriptor says so in its parameters: :func:`descriptor_is_binary`)."""
     if descriptor_name not in DESCRIPTORS:
         raise ValueError(f"unknown descriptor {descriptor_name!r}; choose from {list(DESCRIPTORS)}")
     return descriptor_name not in FLOAT_DESCRIPTORS
+
+
+def descriptor_is_binary(params: Any) -> bool:
+    """True when the descriptor ``params`` gives binary (uint8, Hamming) descriptors."""
+    if params.name == USER:
+        return bool(params.binary)
+    return is_binary(params.name)
 
 
 def check_pair(detector: str, descriptor: str) -> None:
@@ -198,14 +259,20 @@ def check_pair(detector: str, descriptor: str) -> None:
         raise ValueError(f"unknown detector {detector!r}; choose from {list(DETECTORS)}")
     if descriptor not in DESCRIPTORS:
         raise ValueError(f"unknown descriptor {descriptor!r}; choose from {list(DESCRIPTORS)}")
+    missing = unavailable_reason(detector, descriptor)
+    if missing is not None:
+        raise FeatureUnavailableError(detector, descriptor, missing)
     reason = INVALID_PAIRS.get((detector, descriptor))
     if reason is not None:
         raise InvalidCombinationError(detector, descriptor, reason)
 
 
-def valid_pairs() -> list[tuple[str, str]]:
-    """Every valid (detector, descriptor) pair, in registry order."""
-    return [(d, e) for d in DETECTORS for e in DESCRIPTORS if (d, e) not in INVALID_PAIRS]
+def valid_pairs(rubric_only: bool = True) -> list[tuple[str, str]]:
+    """Every valid (detector, descriptor) pair, in registry order: the rubric's only (default,
+    FP.6's grid) or every registered one (``rubric_only=False``)."""
+    dets = RUBRIC_DETECTORS if rubric_only else tuple(d for d in DETECTORS if d != USER)
+    descs = RUBRIC_DESCRIPTORS if rubric_only else tuple(d for d in DESCRIPTORS if d != USER)
+    return [(d, e) for d in dets for e in descs if (d, e) not in INVALID_PAIRS]
 
 
 def _brisk(p: BriskDescriptorParams) -> Any:
@@ -252,8 +319,11 @@ _EXTRACTORS: dict[str, Callable[[Any], Any]] = {
 }
 
 
-def make_extractor(params: Any) -> Any:
-    """The OpenCV descriptor extractor for ``params`` (one of the :data:`DESCRIPTORS` classes)."""
+def make_extractor(params: Any, detector_name: str = "") -> Any:
+    """The OpenCV descriptor extractor for ``params`` (one of the :data:`DESCRIPTORS` classes);
+    ``detector_name`` sets the documented sampling scale of the descriptors that need one."""
+    if params.name in EXTRA_EXTRACTORS:
+        return EXTRA_EXTRACTORS[params.name](params, detector_name)
     return _EXTRACTORS[params.name](params)
 
 
@@ -274,10 +344,13 @@ def describe_keypoints(
     """
     check_pair(detector_name, params.name)
     check_gray(gray)
-    extractor = make_extractor(params)
+    if params.name == USER:
+        return describe_custom(gray, keypoints, params)
+    extractor = make_extractor(params, detector_name)
     if len(keypoints) == 0:
         return empty_keypoints(), _empty_descriptors(extractor)
-    kept, descriptors = extractor.compute(gray, array_to_keypoints(keypoints))
+    image = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR) if params.name in COLOUR_DESCRIPTORS else gray
+    kept, descriptors = extractor.compute(image, array_to_keypoints(keypoints))
     if descriptors is None or len(kept) == 0:
         return empty_keypoints(), _empty_descriptors(extractor)
     return keypoints_to_array(kept), descriptors

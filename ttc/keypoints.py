@@ -1,89 +1,56 @@
-"""Keypoint detection: seven OpenCV detectors behind one call, keypoints as (N, 7) arrays.
+"""Keypoint detection: thirteen OpenCV detectors behind one call, keypoints as (N, 7) arrays.
 
-A keypoint array is float64, shape (N, 7), columns :data:`KEYPOINT_COLUMNS`: x, y (pixels),
-size (diameter, pixels), angle (degrees, −1 when the detector sets none), response, octave
-(OpenCV's packed int) and class_id. Every field of ``cv2.KeyPoint`` is kept because descriptors
-read them back: ORB and SIFT use ``octave``, AKAZE's descriptor indexes its scale space with the
-``class_id`` its detector set. float64 holds the float32 and int32 fields exactly, so
-:func:`keypoints_to_array` and :func:`array_to_keypoints` round-trip losslessly; they are the
-only loops over keypoints and run at the OpenCV boundary.
+The array format and the OpenCV helpers are in :mod:`ttc.feature_base` (re-exported here). The
+rubric's seven detectors are defined in this module, the other six OpenCV ships
+(:data:`EXTRA_DETECTOR_NAMES`) in :mod:`ttc.detectors_extra`, and ``custom`` (a callable from
+your own module) in :mod:`ttc.plugins`.
 
 Each detector has a frozen parameter dataclass (plain int/float/bool/str fields, so Hydra can
 use it as a structured-config schema) whose ``name`` selects it in :data:`DETECTORS` and in
 :func:`detect_keypoints`. Defaults are the Udacity course's where it sets them.
+
+Every detector has ``subpixel`` (default False, so the rubric's numbers stay reproducible):
+when True, :func:`refine_subpixel` moves each keypoint to the sub-pixel corner position
+OpenCV's ``cornerSubPix`` finds on the image gradient, before description. FAST, ORB, HARRIS,
+Shi–Tomasi, AGAST and BRISK keypoints sit on integer pixels; with the lead car's scale change
+of ~0.7 % per frame (< 1 px across a 100 px pair) many distance ratios are then exactly 1.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import reduce
-from itertools import starmap
-from operator import attrgetter
 from typing import Any
 
 import cv2
 import numpy as np
 
-KEYPOINT_COLUMNS = ("x", "y", "size", "angle", "response", "octave", "class_id")
-X, Y, SIZE, ANGLE, RESPONSE, OCTAVE, CLASS_ID = range(7)
-
-CONTRIB_PACKAGE = "opencv-contrib-python-headless"
-
-_SCALAR_FIELDS = attrgetter("size", "angle", "response", "octave", "class_id")
-
-
-class OpenCVFeatureMissing(RuntimeError):
-    """The installed OpenCV lacks a factory or constant this module needs."""
-
-
-def _getattr_path(root: Any, path: str) -> Any:
-    return reduce(getattr, path.split("."), root)
-
-
-def opencv_lookup(*paths: str, hint: str = "") -> Any:
-    """The first of ``paths`` (dotted, relative to ``cv2``) that exists, else a clear error."""
-    for path in paths:
-        try:
-            return _getattr_path(cv2, path)
-        except AttributeError:
-            continue
-    tried = ", ".join(f"cv2.{p}" for p in paths)
-    message = f"OpenCV {cv2.__version__} provides none of {tried}"
-    raise OpenCVFeatureMissing(f"{message}; {hint}" if hint else message)
-
-
-def opencv_factory(name: str, contrib: bool = False) -> Callable[..., Any]:
-    """The ``create`` function of an OpenCV algorithm, wherever this OpenCV version keeps it.
-
-    Tries ``cv2.<name>_create``, ``cv2.<name>.create`` and the same under ``cv2.xfeatures2d``
-    (where contrib algorithms live, and where SIFT lived before 4.4).
-    """
-    paths = (f"{name}_create", f"{name}.create", f"xfeatures2d.{name}_create",
-             f"xfeatures2d.{name}.create")  # fmt: skip
-    hint = f"{name} needs {CONTRIB_PACKAGE}" if contrib else "is OpenCV installed correctly?"
-    return opencv_lookup(*paths, hint=hint)
-
-
-def opencv_constant(owner: str, name: str) -> int:
-    """An enum value such as ``FastFeatureDetector.TYPE_9_16`` under any binding spelling."""
-    return int(opencv_lookup(f"{owner}_{name}", f"{owner}.{name}"))
-
-
-def require_name(params: Any, expected: str) -> None:
-    if params.name != expected:
-        raise ValueError(f"{type(params).__name__}.name must be {expected!r}, got {params.name!r}")
-
-
-def require_choice(field: str, value: Any, choices: tuple[Any, ...]) -> None:
-    if value not in choices:
-        raise ValueError(f"{field} must be one of {choices}, got {value!r}")
-
-
-def require_positive(**values: float) -> None:
-    for field, value in values.items():
-        if not value > 0:
-            raise ValueError(f"{field} must be > 0, got {value!r}")
+from ttc.detectors_extra import EXTRA_DETECT, EXTRA_DETECTORS
+from ttc.feature_base import (  # noqa: F401  (re-exported: the keypoint API lives here)
+    ANGLE,
+    CLASS_ID,
+    CONTRIB_PACKAGE,
+    KEYPOINT_COLUMNS,
+    OCTAVE,
+    RESPONSE,
+    SIZE,
+    OpenCVFeatureMissing,
+    X,
+    Y,
+    array_to_keypoints,
+    check_gray,
+    detect_with,
+    empty_keypoints,
+    keypoints_to_array,
+    opencv_constant,
+    opencv_factory,
+    opencv_lookup,
+    points_array,
+    require_choice,
+    require_name,
+    require_positive,
+)
+from ttc.plugins import USER, CustomDetectorParams, detect_custom
 
 
 @dataclass(frozen=True)
@@ -104,6 +71,7 @@ class ShiTomasiParams:
     use_harris: bool = False
     gradient_size: int = 3
     max_corners: int = 0
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         require_name(self, "shitomasi")
@@ -138,6 +106,7 @@ class HarrisParams:
     k: float = 0.04
     min_response: float = 100.0
     max_overlap: float = 0.0
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         require_name(self, "harris")
@@ -168,6 +137,7 @@ class FastParams:
     threshold: int = 30
     nonmax_suppression: bool = True
     type: str = "TYPE_9_16"
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         require_name(self, "fast")
@@ -182,6 +152,7 @@ class BriskParams:
     threshold: int = 30
     octaves: int = 3
     pattern_scale: float = 1.0
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         require_name(self, "brisk")
@@ -211,6 +182,7 @@ class OrbParams:
     score_type: str = "HARRIS_SCORE"
     patch_size: int = 31
     fast_threshold: int = 20
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         require_name(self, "orb")
@@ -236,6 +208,7 @@ class AkazeParams:
     n_octave_layers: int = 4
     diffusivity: str = "DIFF_PM_G2"
     max_points: int = -1
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         require_name(self, "akaze")
@@ -254,11 +227,15 @@ class SiftParams:
     contrast_threshold: float = 0.04
     edge_threshold: float = 10.0
     sigma: float = 1.6
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         require_name(self, "sift")
         require_positive(n_octave_layers=self.n_octave_layers, sigma=self.sigma)
 
+
+#: The rubric's detectors (FP.6's grid), in the course's order.
+RUBRIC_DETECTORS: tuple[str, ...] = ("shitomasi", "harris", "fast", "brisk", "orb", "akaze", "sift")
 
 DETECTORS: dict[str, type] = {
     "shitomasi": ShiTomasiParams,
@@ -268,43 +245,11 @@ DETECTORS: dict[str, type] = {
     "orb": OrbParams,
     "akaze": AkazeParams,
     "sift": SiftParams,
+    **EXTRA_DETECTORS,
+    USER: CustomDetectorParams,
 }
-
-
-def empty_keypoints() -> np.ndarray:
-    """A (0, 7) keypoint array."""
-    return np.empty((0, len(KEYPOINT_COLUMNS)), dtype=np.float64)
-
-
-def keypoints_to_array(keypoints: list[cv2.KeyPoint] | tuple[cv2.KeyPoint, ...]) -> np.ndarray:
-    """(N, 7) float64 array of OpenCV keypoints, columns :data:`KEYPOINT_COLUMNS`."""
-    if len(keypoints) == 0:
-        return empty_keypoints()
-    out = np.empty((len(keypoints), len(KEYPOINT_COLUMNS)), dtype=np.float64)
-    out[:, X : Y + 1] = cv2.KeyPoint_convert(keypoints)
-    out[:, SIZE:] = list(map(_SCALAR_FIELDS, keypoints))
-    return out
-
-
-def array_to_keypoints(array: np.ndarray) -> list[cv2.KeyPoint]:
-    """OpenCV keypoints of an (N, 7) array (octave and class_id rounded to int)."""
-    array = np.asarray(array, dtype=np.float64)
-    if array.ndim != 2 or array.shape[1] != len(KEYPOINT_COLUMNS):
-        raise ValueError(f"keypoint array must be (N, {len(KEYPOINT_COLUMNS)}), got {array.shape}")
-    columns = array[:, :OCTAVE].T.tolist()
-    columns += np.rint(array[:, OCTAVE:]).astype(np.int64).T.tolist()
-    return list(starmap(cv2.KeyPoint, zip(*columns, strict=True)))
-
-
-def _points_array(xy: np.ndarray, size: float, response: np.ndarray) -> np.ndarray:
-    """Keypoint array of pixel positions (N × 2) with one size, no angle, octave 0."""
-    out = np.zeros((len(xy), len(KEYPOINT_COLUMNS)), dtype=np.float64)
-    out[:, X : Y + 1] = xy
-    out[:, SIZE] = size
-    out[:, ANGLE] = -1.0
-    out[:, RESPONSE] = response
-    out[:, CLASS_ID] = -1.0
-    return out
+#: The detectors beyond the rubric (OpenCV's other feature detectors).
+EXTRA_DETECTOR_NAMES: tuple[str, ...] = tuple(EXTRA_DETECTORS)
 
 
 def disk_footprint(distance: float) -> np.ndarray:
@@ -344,7 +289,7 @@ def _detect_shitomasi(gray: np.ndarray, p: ShiTomasiParams) -> np.ndarray:
     )  # fmt: skip
     if corners is None or len(corners) == 0:
         return empty_keypoints()
-    return _points_array(corners.reshape(-1, 2), p.block_size, quality.reshape(-1))
+    return points_array(corners.reshape(-1, 2), p.block_size, quality.reshape(-1))
 
 
 def _detect_harris(gray: np.ndarray, p: HarrisParams) -> np.ndarray:
@@ -352,21 +297,17 @@ def _detect_harris(gray: np.ndarray, p: HarrisParams) -> np.ndarray:
     norm = cv2.normalize(response, None, 0.0, 255.0, cv2.NORM_MINMAX, cv2.CV_32F)
     rows, cols = nms_local_maxima(norm, p.min_response, p.nms_distance)
     xy = np.column_stack([cols, rows])
-    return _points_array(xy, p.keypoint_size, norm[rows, cols])
-
-
-def _detect_with(detector: Any, gray: np.ndarray) -> np.ndarray:
-    return keypoints_to_array(detector.detect(gray, None))
+    return points_array(xy, p.keypoint_size, norm[rows, cols])
 
 
 def _detect_fast(gray: np.ndarray, p: FastParams) -> np.ndarray:
     kind = opencv_constant("FastFeatureDetector", p.type)
     create = opencv_factory("FastFeatureDetector")
-    return _detect_with(create(p.threshold, p.nonmax_suppression, kind), gray)
+    return detect_with(create(p.threshold, p.nonmax_suppression, kind), gray)
 
 
 def _detect_brisk(gray: np.ndarray, p: BriskParams) -> np.ndarray:
-    return _detect_with(opencv_factory("BRISK")(p.threshold, p.octaves, p.pattern_scale), gray)
+    return detect_with(opencv_factory("BRISK")(p.threshold, p.octaves, p.pattern_scale), gray)
 
 
 def _detect_orb(gray: np.ndarray, p: OrbParams) -> np.ndarray:
@@ -376,7 +317,7 @@ def _detect_orb(gray: np.ndarray, p: OrbParams) -> np.ndarray:
         scoreType=opencv_constant("ORB", p.score_type), patchSize=p.patch_size,
         fastThreshold=p.fast_threshold,
     )  # fmt: skip
-    return _detect_with(detector, gray)
+    return detect_with(detector, gray)
 
 
 def _detect_akaze(gray: np.ndarray, p: AkazeParams) -> np.ndarray:
@@ -384,14 +325,14 @@ def _detect_akaze(gray: np.ndarray, p: AkazeParams) -> np.ndarray:
         threshold=p.threshold, nOctaves=p.n_octaves, nOctaveLayers=p.n_octave_layers,
         diffusivity=opencv_constant("KAZE", p.diffusivity), max_points=p.max_points,
     )  # fmt: skip
-    return _detect_with(detector, gray)
+    return detect_with(detector, gray)
 
 
 def _detect_sift(gray: np.ndarray, p: SiftParams) -> np.ndarray:
     detector = opencv_factory("SIFT")(
         p.n_features, p.n_octave_layers, p.contrast_threshold, p.edge_threshold, p.sigma
     )
-    return _detect_with(detector, gray)
+    return detect_with(detector, gray)
 
 
 _DETECT: dict[str, Callable[[np.ndarray, Any], np.ndarray]] = {
@@ -402,22 +343,53 @@ _DETECT: dict[str, Callable[[np.ndarray, Any], np.ndarray]] = {
     "orb": _detect_orb,
     "akaze": _detect_akaze,
     "sift": _detect_sift,
+    **EXTRA_DETECT,
+    USER: detect_custom,
 }
 
+#: ``cornerSubPix`` search window half-size (pixels: a 7 × 7 window), the zero zone (none) and
+#: the stop criteria (40 iterations or a step below 0.001 px).
+SUBPIXEL_HALF_WINDOW = 3
+SUBPIXEL_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.001)
 
-def check_gray(gray: np.ndarray) -> None:
-    """Raise ValueError unless ``gray`` is a 2-D uint8 image."""
-    if not isinstance(gray, np.ndarray) or gray.ndim != 2 or gray.dtype != np.uint8:
-        desc = f"{gray.dtype} {gray.shape}" if isinstance(gray, np.ndarray) else type(gray)
-        raise ValueError(f"expected a 2-D uint8 grayscale image, got {desc}")
+
+def refine_subpixel(
+    gray: np.ndarray, keypoints: np.ndarray, half_window: int = SUBPIXEL_HALF_WINDOW
+) -> np.ndarray:
+    """Keypoints (N, 7) moved to their sub-pixel corner positions (OpenCV ``cornerSubPix``).
+
+    ``cornerSubPix`` iterates to the point where the image gradient in a
+    (2·``half_window`` + 1)² pixel window is orthogonal to the vectors from it, which is the
+    corner's position for a corner. A keypoint whose refined position is not finite, lies
+    outside the image or moved farther than ``half_window`` pixels (no corner there: blobs,
+    edges) keeps its original position. Only x and y change; order and count are kept.
+    """
+    check_gray(gray)
+    if len(keypoints) == 0:
+        return keypoints.copy()
+    start = np.ascontiguousarray(keypoints[:, [X, Y]], dtype=np.float32).reshape(-1, 1, 2)
+    win = (half_window, half_window)
+    refined = cv2.cornerSubPix(gray, start.copy(), win, (-1, -1), SUBPIXEL_CRITERIA)
+    refined = refined.reshape(-1, 2).astype(np.float64)
+    h, w = gray.shape
+    moved = np.hypot(*(refined - keypoints[:, [X, Y]]).T)
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(refined).all(axis=1) & (moved <= half_window)
+        ok &= (refined[:, 0] >= 0) & (refined[:, 0] <= w - 1)
+        ok &= (refined[:, 1] >= 0) & (refined[:, 1] <= h - 1)
+    out = keypoints.copy()
+    out[ok, X], out[ok, Y] = refined[ok, 0], refined[ok, 1]
+    return out
 
 
 def detect_keypoints(gray: np.ndarray, params: Any) -> np.ndarray:
     """Keypoints (N, 7) of a uint8 H × W image, in the detector's own (deterministic) order.
 
     ``params`` is one of the :data:`DETECTORS` dataclasses; its ``name`` picks the detector.
+    With ``params.subpixel`` the positions are refined by :func:`refine_subpixel`.
     """
     if params.name not in _DETECT:
         raise ValueError(f"unknown detector {params.name!r}; choose from {sorted(_DETECT)}")
     check_gray(gray)
-    return _DETECT[params.name](gray, params)
+    keypoints = _DETECT[params.name](gray, params)
+    return refine_subpixel(gray, keypoints) if getattr(params, "subpixel", False) else keypoints
