@@ -22,6 +22,11 @@ neighbours for ~25 % (LSH, ORB) and ~38 % (KD-tree, SIFT) of the queries on KITT
 :func:`knn_candidates` therefore calls ``cv2.setRNGSeed(FLANN_SEED)`` before every FLANN query
 (which reseeds the calling thread's OpenCV RNG), so equal inputs give equal matches in every
 process and worker. BF is exact and deterministic.
+
+Beyond descriptor matching: ``matcher=klt`` tracks the previous frame's keypoints into the
+current frame (:mod:`ttc.klt`, no descriptor; :func:`tracks_to_matches` gives the same
+index pairs) and ``matcher=custom`` calls your own k = 2 candidate function
+(:mod:`ttc.plugins`). :data:`MATCHER_PARAMS` maps every matcher name to its parameter class.
 """
 
 from __future__ import annotations
@@ -33,10 +38,16 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ttc.klt import KltParams, Tracks
+from ttc.plugins import USER, CustomMatcherParams, match_custom
+
 FLANN_SEED = 0
 FLANN_INDEX_KDTREE = 1
 FLANN_INDEX_LSH = 6
+#: The descriptor matchers (the rubric's).
 MATCHERS = ("bf", "flann")
+#: Matchers that track keypoints instead of matching descriptors.
+TRACKERS = ("klt",)
 SELECTORS = ("nn", "knn")
 
 _TRAIN_AND_DISTANCE = attrgetter("trainIdx", "distance")
@@ -105,6 +116,30 @@ class Matches:
         return cls(np.empty(0, np.int32), np.empty(0, np.int32), np.empty(0, np.float32))
 
 
+#: Every matcher name → its parameter class.
+MATCHER_PARAMS: dict[str, type] = {
+    "bf": MatcherParams,
+    "flann": MatcherParams,
+    "klt": KltParams,
+    USER: CustomMatcherParams,
+}
+
+
+def uses_descriptors(matcher: Any) -> bool:
+    """False for a tracking matcher (``klt``), which needs no descriptor."""
+    return matcher.name not in TRACKERS
+
+
+def tracks_to_matches(tracks: Tracks) -> Matches:
+    """KLT tracks as matches: ``curr_idx`` indexes ``tracks.keypoints_curr`` (0..K−1) and
+    ``distance`` is the forward–backward error (pixels)."""
+    return Matches(
+        prev_idx=tracks.prev_idx.astype(np.int32),
+        curr_idx=np.arange(len(tracks), dtype=np.int32),
+        distance=tracks.fb_error.astype(np.float32),
+    )
+
+
 def empty_candidates(n_queries: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Candidate arrays of ``n_queries`` queries without neighbours (idx −1, dist +inf)."""
     return (
@@ -166,7 +201,7 @@ def knn_candidates(
     desc_prev: np.ndarray | None,
     desc_curr: np.ndarray | None,
     binary: bool,
-    matcher: MatcherParams,
+    matcher: MatcherParams | CustomMatcherParams,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The two nearest current-frame descriptors of every previous-frame descriptor.
 
@@ -177,6 +212,8 @@ def knn_candidates(
     n_prev, n_curr = _rows(desc_prev), _rows(desc_curr)
     if n_prev == 0 or n_curr == 0:
         return empty_candidates(n_prev)
+    if matcher.name == USER:
+        return match_custom(desc_prev, desc_curr, binary, matcher)
     query, train = _prepare(desc_prev, binary), _prepare(desc_curr, binary)
     if query.shape[1] != train.shape[1]:
         raise ValueError(f"descriptor widths differ: {query.shape[1]} vs {train.shape[1]}")
