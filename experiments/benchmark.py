@@ -39,13 +39,19 @@ import pandas as pd
 from experiments import store
 from experiments.paths import PROJECT_ROOT, default_data_root
 from experiments.provenance import code_version, machine, package_versions
-from ttc.descriptors import DESCRIPTORS, describe_keypoints, is_binary, valid_pairs
+from ttc.descriptors import (
+    DESCRIPTORS,
+    RUBRIC_DESCRIPTORS,
+    describe_keypoints,
+    is_binary,
+    valid_pairs,
+)
 from ttc.frames import load_frame
-from ttc.keypoints import DETECTORS, detect_keypoints
+from ttc.keypoints import DETECTORS, RUBRIC_DETECTORS, detect_keypoints
 from ttc.matching import MatcherParams, knn_candidates
 from ttc.objects import ObjectDetectorParams, detect_objects, load_detector
 
-FULL = {"detectors": list(DETECTORS), "descriptors": list(DESCRIPTORS), "last": 18}
+FULL = {"detectors": list(RUBRIC_DETECTORS), "descriptors": list(RUBRIC_DESCRIPTORS), "last": 18}
 REDUCED = {"detectors": ["fast", "orb"], "descriptors": ["brief", "orb"], "last": 5}
 TARGETS = {"cold_over_floor_max": 1.3, "nocache_over_cold_min": 5.0, "warm_filter_s_max": 10.0}
 
