@@ -163,6 +163,16 @@ class SiftDescriptorParams:
         require_positive(n_octave_layers=self.n_octave_layers, sigma=self.sigma)
 
 
+@dataclass(frozen=True)
+class NoDescriptorParams:
+    """The descriptor of a setting whose matcher uses none (``matcher=klt``): recorded as
+    ``none``, never in :data:`DESCRIPTORS`."""
+
+    name: str = "none"
+
+
+NO_DESCRIPTOR = NoDescriptorParams()
+
 #: The rubric's descriptors (FP.6's grid).
 RUBRIC_DESCRIPTORS: tuple[str, ...] = ("brisk", "brief", "orb", "freak", "akaze", "sift")
 

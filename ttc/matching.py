@@ -99,6 +99,17 @@ class SelectorParams:
 
 
 @dataclass(frozen=True)
+class NoSelectorParams:
+    """The selector of a setting whose matcher selects nothing (``matcher=klt``): recorded as
+    ``none``."""
+
+    name: str = "none"
+
+
+NO_SELECTOR = NoSelectorParams()
+
+
+@dataclass(frozen=True)
 class Matches:
     """K matches: ``prev_idx``/``curr_idx`` (int32) index the previous/current frame's kept
     keypoints; ``distance`` (float32) is the descriptor distance (Hamming bits or L2)."""
