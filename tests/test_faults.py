@@ -124,25 +124,24 @@ def test_2_failures_exit_nonzero(kitti_dir, tmp_path, shared_cache) -> None:
     (seq / VELO_TO_CAM).write_text(good.replace(t_line, "T: nan " + " ".join(t_line.split()[2:])))
     root = tmp_path / "data"
     # a sweep whose every computed setting fails (the AKAZE pair is skipped: not a failure)
-    args = ["-m", "detector=fast", "descriptor=brief,orb,akaze", "dataset.last=2"]
+    args = ["-m", "detector=fast", "descriptor=brief,orb,akaze", "dataset.last=1",
+            "hydra.launcher.n_jobs=1"]  # fmt: skip
     res = run_cli([*args, "sweep_name=bad"], root, tmp_path, shared_cache)
     assert res.returncode == 1, res.stderr[-2000:]
     assert "settings: 3 total, 0 ok, 1 skipped, 2 failed" in res.stdout
     assert res.stdout.count("'T' has a non-finite value 'nan'") >= 2  # listed in the summary
     assert "sweep incomplete: 2 setting(s) failed" in res.stderr
-    # the same sweep with the calibration repaired succeeds; skipped still is no failure
+    # calibration repaired, but a merge that cannot write frames.parquet (a folder in its
+    # place, like a full disk): the settings now succeed, the sweep still exits 1
     (seq / VELO_TO_CAM).write_text(good)
-    res = run_cli([*args, "sweep_name=bad"], root, tmp_path, shared_cache)
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert "this invocation: 2 computed, 1 already complete" in res.stdout
-    # a merge that cannot write frames.parquet (a folder in its place, like a full disk)
-    records = store.list_records(tmp_path / "sweeps" / "bad")
     (tmp_path / "sweeps" / "bad" / store.FRAMES_FILE).unlink()
     (tmp_path / "sweeps" / "bad" / store.FRAMES_FILE).mkdir()
     res = run_cli([*args, "sweep_name=bad"], root, tmp_path, shared_cache)
     assert res.returncode == 1
     assert "sweep incomplete: merge failed, no" in res.stderr and "frames.parquet" in res.stderr
-    assert store.list_records(tmp_path / "sweeps" / "bad") == records  # nothing recomputed
+    assert "setting(s) failed" not in res.stderr  # skipped is no failure
+    runs = pd.DataFrame(store.list_records(tmp_path / "sweeps" / "bad"))
+    assert sorted(runs["status"]) == ["ok", "ok", "skipped"]  # the rows are all there
 
 
 # -- 3. stale results are recomputed -------------------------------------------------------
@@ -153,7 +152,7 @@ def test_3_frame_error_run_is_retried_after_repair(kitti_dir, tmp_path, shared_c
     target = image.readlink()
     image.unlink()
     run_dir = tmp_path / "single"
-    args = ["dataset.last=3", f"hydra.run.dir={run_dir}"]
+    args = ["dataset.last=3", f"hydra.run.dir={run_dir}", "print_rows=0"]
     res = run_cli(args, tmp_path / "data", tmp_path, shared_cache)
     assert res.returncode == 0, res.stderr[-2000:]  # the setting ran; its bad frames are rows
     rows, record = single_rows(run_dir)
@@ -176,13 +175,13 @@ def test_3_load_sweep_remerges_a_stale_merge(kitti_dir, tmp_path, shared_cache) 
     root = tmp_path / "data"
     farm(kitti_dir, root)
     sweep = tmp_path / "sweeps" / "grow"
-    res = run_cli(["-m", "descriptor=brief", "dataset.last=2", "sweep_name=grow"], root,
-                  tmp_path, shared_cache)  # fmt: skip
+    res = run_cli(["-m", "descriptor=brief", "dataset.last=1", "sweep_name=grow",
+                   "hydra.launcher.n_jobs=1"], root, tmp_path, shared_cache)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert store.merge_is_current(sweep)
     assert pd.read_parquet(sweep / store.FRAMES_FILE)["run_id"].nunique() == 1
     # one more setting into the same folder without a merge (a single run there)
-    res = run_cli(["descriptor=orb", "dataset.last=2", f"hydra.run.dir={sweep}"], root,
+    res = run_cli(["descriptor=orb", "dataset.last=1", f"hydra.run.dir={sweep}"], root,
                   tmp_path, shared_cache)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert not store.merge_is_current(sweep)
@@ -198,7 +197,8 @@ def test_3_load_sweep_remerges_a_stale_merge(kitti_dir, tmp_path, shared_cache) 
 def test_4_corrupt_rows_file_is_named_and_recomputed(kitti_dir, tmp_path, shared_cache) -> None:
     root = tmp_path / "data"
     farm(kitti_dir, root)
-    args = ["-m", "descriptor=brief,orb", "dataset.last=2", "sweep_name=c"]
+    args = ["-m", "descriptor=brief,orb", "dataset.last=1", "sweep_name=c",
+            "hydra.launcher.n_jobs=1"]  # fmt: skip
     assert run_cli(args, root, tmp_path, shared_cache).returncode == 0
     sweep = tmp_path / "sweeps" / "c"
     runs = pd.read_parquet(sweep / store.RUNS_FILE)
@@ -246,7 +246,7 @@ def _kill_worker_of(sweep: Path, setting: str, proc: subprocess.Popen) -> list[i
 def test_5_dead_worker_costs_only_its_setting(kitti_dir, tmp_path) -> None:
     root = tmp_path / "data"
     farm(kitti_dir, root)
-    args = ["-m", "descriptor=brief,orb,brisk", "dataset.last=4", "cache.enabled=false",
+    args = ["-m", "descriptor=brief,orb", "dataset.last=2", "cache.enabled=false",
             "sweep_name=crash", "hydra.launcher.n_jobs=2"]  # fmt: skip
     env = {**os.environ, "TTC_DATA_DIR": str(root), "TTC_RESULTS_DIR": str(tmp_path / "sweeps"),
            "TTC_CACHE_DIR": str(tmp_path / "cache")}  # fmt: skip
@@ -263,14 +263,13 @@ def test_5_dead_worker_costs_only_its_setting(kitti_dir, tmp_path) -> None:
     runs = pd.read_parquet(sweep / store.RUNS_FILE).set_index("descriptor")
     assert runs.loc["orb", "status"] == "failed"
     assert "worker process died (SIGKILL(-9))" in runs.loc["orb", "message"]
-    assert (runs.loc[["brief", "brisk"], "status"] == "ok").all()
+    assert runs.loc["brief", "status"] == "ok"  # the other setting is whole
     frames = pd.read_parquet(sweep / store.FRAMES_FILE)
-    assert sorted(frames["descriptor"].unique()) == ["brief", "brisk"]
-    assert (frames[frames["is_lead"]].groupby("descriptor").size() == 4).all()
+    assert frames.loc[frames["is_lead"], "descriptor"].tolist() == ["brief", "brief"]
     # a re-run retries the crashed setting only
     res = run_cli(args, root, tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
-    assert "this invocation: 1 computed, 2 already complete" in res.stdout
+    assert "this invocation: 1 computed, 1 already complete" in res.stdout
     assert (pd.read_parquet(sweep / store.RUNS_FILE)["status"] == "ok").all()
 
 
@@ -418,7 +417,7 @@ def test_9_decoded_images_are_bounded(kitti_dir, monkeypatch) -> None:
 def test_10_two_identical_sweeps_compute_each_setting_once(kitti_dir, tmp_path) -> None:
     root = tmp_path / "data"
     farm(kitti_dir, root)
-    args = ["-m", "descriptor=brief,orb", "dataset.last=3", "cache.enabled=false",
+    args = ["-m", "descriptor=brief,orb", "dataset.last=2", "cache.enabled=false",
             "sweep_name=twice", "hydra.launcher.n_jobs=1"]  # fmt: skip
     env = {**os.environ, "TTC_DATA_DIR": str(root), "TTC_RESULTS_DIR": str(tmp_path / "sweeps"),
            "TTC_CACHE_DIR": str(tmp_path / "cache")}  # fmt: skip
