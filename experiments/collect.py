@@ -15,7 +15,7 @@ import pandas as pd
 
 from experiments import store
 from experiments.reference_store import runs_reference
-from ttc.evaluation import metrics
+from ttc import evaluation as ev
 from ttc.pipeline import SETTING_AXES
 
 SETTING_COLUMNS = list(SETTING_AXES)
@@ -36,15 +36,25 @@ def interim_scores(frames: pd.DataFrame) -> pd.DataFrame:
     return out.sort_values(["median_abs_diff_s", "run_id"], ignore_index=True)
 
 
-RANKED_COLUMNS = ["rank", "run_id", *SETTING_COLUMNS, "camera_outlier_rate", "camera_medae_rel",
-                  "lidar_outlier_rate", "lidar_medae_rel", "n_frames", "ms_per_frame"]  # fmt: skip
+#: Axes that change only the lidar TTC: a sweep varying nothing else is ranked on the lidar.
+LIDAR_ONLY_AXES = ("lidar_ttc",)
 
 
-def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
-    """Runs ranked on the camera TTC by :data:`ttc.evaluation.metrics.RANKING_RULE` against ``reference``
-    (rates and relative errors are fractions, time in ms)."""
-    ranked = metrics.rank_runs(metrics.run_metrics(frames, reference), "camera")
-    return ranked[[c for c in RANKED_COLUMNS if c in ranked]]
+def ranked_sensor(runs: pd.DataFrame) -> str:
+    """The sensor a sweep's summary ranks on: ``lidar`` when only lidar-only axes vary
+    (e.g. ``fp5_lidar``), else ``camera``."""
+    varying = [a for a in SETTING_AXES if a in runs and runs[a].nunique(dropna=False) > 1]
+    return "lidar" if varying and set(varying) <= set(LIDAR_ONLY_AXES) else "camera"
+
+
+def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame, sensor: str) -> pd.DataFrame:
+    """Runs ranked on ``sensor`` by :data:`ttc.evaluation.RANKING_RULE` against ``reference``
+    (rates are fractions, MiD in 10⁻⁴ of the log distance ratio, time in ms)."""
+    ranked = ev.rank_runs(ev.run_metrics(frames, reference), sensor)
+    keys = [f"{sensor}_{k}" for k in ev.RANKING_KEYS]
+    columns = ["rank", "run_id", *SETTING_COLUMNS, *keys, f"{sensor}_outlier_rate",
+               f"{sensor}_medae_rel", "n_frames", "ms_per_frame"]  # fmt: skip
+    return ranked[[c for c in columns if c in ranked]]
 
 
 def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None):
@@ -111,8 +121,9 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> tupl
     if reference is None:
         title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
         return interim_scores(frames), title
-    title = "on the camera TTC against the reference (ttc.evaluation.metrics.RANKING_RULE)"
-    return ranked_runs(frames, reference), title
+    sensor = ranked_sensor(runs[runs["status"] == "ok"])
+    title = f"on the {sensor} TTC against the reference (ttc.evaluation.RANKING_RULE)"
+    return ranked_runs(frames, reference, sensor), title
 
 
 def main(argv: list[str] | None = None) -> None:
