@@ -4,6 +4,7 @@ reference, FP.5 and FP.6 reports, with the seconds each step took."""
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -102,4 +103,7 @@ def main(argv: list[str] | None = None) -> None:
     for d in args.sweep_dirs:
         if not d.is_dir():
             p.error(f"{d} is not a folder")
-    build_report(args.sweep_dirs, args.out, args.data_dir, args.cache_dir, not args.no_pictures)
+    try:
+        build_report(args.sweep_dirs, args.out, args.data_dir, args.cache_dir, not args.no_pictures)
+    except store.StoreError as exc:  # a corrupt or inconsistent results file, named
+        sys.exit(f"report not written: {exc}")

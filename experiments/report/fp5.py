@@ -73,7 +73,9 @@ def _rules_paragraph() -> str:
     return (
         "Lidar TTC of the lead vehicle per frame for every lidar estimator in the sweeps, "
         "beside the reference TTC ([reference.md](reference.md)). A frame is **flagged** when "
-        f"the TTC is invalid or more than {ev.OUTLIER_REL:.0%} off a finite reference, "
+        f"the TTC is invalid or more than {ev.OUTLIER_REL:.0%} off a finite reference known "
+        f"to within {ev.MAX_REF_REL_SD:.0%} (frames with a more uncertain reference are listed "
+        "in reference.md and not flagged on their TTC), "
         f"a finite TTC under {ev.FALSE_ALARM_S:.0f} s where the reference says no "
         "collision course, or the scan is truncated. Each flagged row gets the reasons the "
         "rules of `ttc/evaluation/lidar_diagnosis.py` find in the data: points ahead of the "

@@ -13,7 +13,13 @@ from experiments.report.encode import markdown_table, save_picture, write_csv, w
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData
 from experiments.report.pictures import MAX_CAMERA_PICTURES, camera_picture
-from experiments.report.plots import plot_heatmap, plot_pareto, plot_top_bottom, save_figure
+from experiments.report.plots import (
+    plot_heatmap,
+    plot_pareto,
+    plot_rank_intervals,
+    plot_top_bottom,
+    save_figure,
+)
 from ttc import evaluation as ev
 
 #: Way-off camera cases whose intermediate arrays are examined (≈ 30 ms each).
@@ -21,10 +27,14 @@ MAX_EXAMINED = 60
 
 RANKING_COLUMNS = [
     "dataset", "rank", "rank_lo", "rank_hi", "rank_median", "setting", *ev.CAMERA_AXES[:-1],
+    "camera_invalid_rate", "camera_invalid_rate_lo", "camera_invalid_rate_hi",
+    "camera_mid_median", "camera_mid_median_lo", "camera_mid_median_hi", "camera_mid_mean",
+    *(f"camera_mid_median_{r}" for r in ev.REGIMES),
     "camera_outlier_rate", "camera_outlier_rate_lo", "camera_outlier_rate_hi",
     "camera_medae_rel", "camera_medae_rel_lo", "camera_medae_rel_hi", "camera_meanae_rel",
-    "camera_false_alarm_rate", "camera_jitter_s", "camera_invalid", "way_off_frames",
-    "n_frames", "ms_per_frame", "ms_compute_per_frame", "run_id",
+    "camera_false_alarm_rate", "camera_warn_precision", "camera_warn_recall",
+    "camera_jitter_s", "camera_invalid", "way_off_frames", "n_frames", "n_judged",
+    "n_uncertain", "block_length", "ms_per_frame", "ms_compute_per_frame", "run_id",
 ]  # fmt: skip
 #: Columns of ``fp6_camera_ttc.csv``. Two are left out because the file is the largest of a
 #: report (10,780 rows for 0-77) and they follow from others: the run id (``fp6_ranking.csv``
@@ -87,6 +97,7 @@ def fp6_report(
     save_figure(plot_heatmap(ranking), out / "fp6_heatmap.png")
     save_figure(plot_top_bottom(t, ranking, reference), out / "fp6_ttc_series.png")
     save_figure(plot_pareto(ranking), out / "fp6_pareto.png")
+    save_figure(plot_rank_intervals(ranking), out / "fp6_rank_intervals.png")
     shutil.rmtree(out / "fp6_pictures", ignore_errors=True)
     drawn = []
     if pictures:
@@ -99,11 +110,40 @@ def fp6_report(
     return t, ranking
 
 
+def _intervals_paragraph(ranking: pd.DataFrame) -> str:
+    """How the rank intervals were made: block length, replicates, frames judged."""
+    blocks = ", ".join(sorted({str(int(b)) for b in ranking["block_length"]}))
+    uncertain = int(ranking["n_uncertain"].max()) if len(ranking) else 0
+    return (
+        f"Rank intervals: 90 % paired moving-block bootstrap over frames ({ev.N_BOOT} "
+        f"replicates, seed 0, blocks of {blocks} consecutive frames chosen from the errors' "
+        "autocorrelation: errors of neighbouring frames are correlated, so resampling single "
+        "frames would give intervals that are too narrow). Every frame pair with an estimate "
+        "counts in the median MiD, the stationary ones included; the relative TTC error and "
+        f"the outlier rate use the frames with a judgeable reference, {uncertain} frame "
+        "pair(s) with a finite reference TTC too uncertain to judge (see reference.md) are "
+        "left out of them."
+    )
+
+
+def _tied_sentences(ranking: pd.DataFrame) -> list[str]:
+    """Per dataset, one checkable sentence: how many settings are tied for first."""
+    out = []
+    for dataset, group in ranking.groupby("dataset", sort=True):
+        tied = group[group["rank_lo"] <= 1]
+        out.append(
+            f"**{dataset}: {len(tied)} of {len(group)} settings are statistically tied for "
+            "first**: their 90 % rank interval includes rank 1 (`rank_lo` = 1 in "
+            f"`fp6_ranking.csv`): {', '.join(tied['setting'])}."
+        )
+    return out
+
+
 def _way_off_paragraph(t: pd.DataFrame) -> str:
     """What makes a frame way off and the rules that explain it, with their thresholds."""
     return (
         f"Way off: relative error > {ev.WAY_OFF_REL:.0%}, an invalid TTC where the reference is "
-        "finite, or a false alarm. Reasons from the rows: the TTC's reason code, fewer than "
+        "finite and judgeable, or a false alarm. Reasons from the rows: the TTC's reason code, fewer than "
         f"{ev.FEW_MATCHES} kept matches, > {ev.REMOVED_SHARE:.0%} of the box's matches removed, "
         f"|r - 1| < {ev.RATIO_HAIR}; otherwise the scale error in pixels. For the "
         f"{int(t['examined'].sum())} worst (at most {ev.PER_PAIR} per detector x descriptor "
@@ -125,10 +165,10 @@ def fp6_markdown(
     out: Path,
 ) -> str:
     """The FP.6 markdown: ranking, best settings, way-off frames with reasons, pictures."""
-    show = ["rank", "rank_lo", "rank_hi", "setting", "camera_outlier_rate", "camera_medae_rel",
-            "camera_meanae_rel", "camera_jitter_s", "camera_invalid", "way_off_frames",
-            "ms_compute_per_frame", "ms_per_frame"]  # fmt: skip
-    tied = ranking[ranking["rank_lo"] == 1]
+    show = ["rank", "rank_lo", "rank_hi", "setting", "camera_invalid_rate", "camera_mid_median",
+            *(f"camera_mid_median_{r}" for r in ev.REGIMES), "camera_outlier_rate",
+            "camera_medae_rel", "way_off_frames", "ms_compute_per_frame"]  # fmt: skip
+    tied = ranking[ranking["rank_lo"] <= 1]
     way = t[t["way_off"]]
     codes = way["reasons"].str.split(";").explode().value_counts().rename_axis("reason")
     worst = ev.worst_order(t).head(40)
@@ -139,12 +179,17 @@ def fp6_markdown(
         "Camera TTC of the lead vehicle per frame for every camera setting in the sweeps, "
         "judged against the reference TTC ([reference.md](reference.md)).",
         "",
-        f"**Ranking rule** (`ttc.evaluation.RANKING_RULE`): {ev.RANKING_RULE} Rank "
-        f"intervals: 90 % paired bootstrap over frames ({ev.N_BOOT} replicates, seed 0).",
+        f"**Ranking rule** (`ttc.evaluation.RANKING_RULE`): {ev.RANKING_RULE}",
+        "",
+        _intervals_paragraph(ranking),
+        "",
+        *_tied_sentences(ranking),
         "",
         f"## Best settings ({len(tied)} whose rank interval includes 1)",
         "",
         markdown_table(ranking[show].head(max(10, min(len(tied), 25)))),
+        "",
+        "![rank intervals](fp6_rank_intervals.png)",
         "",
         "![heatmap](fp6_heatmap.png)",
         "",

@@ -34,14 +34,10 @@ class SweepData:
 
 
 def read_sweep(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """``frames.parquet`` and ``runs.parquet`` of a sweep (merged first when missing)."""
-    sweep_dir = Path(sweep_dir)
-    frames_path, runs_path = sweep_dir / store.FRAMES_FILE, sweep_dir / store.RUNS_FILE
-    if not (frames_path.is_file() and runs_path.is_file()):
-        if not (sweep_dir / store.RUNS_DIR).is_dir():
-            raise FileNotFoundError(f"{sweep_dir} is not a sweep folder (no {store.RUNS_DIR}/)")
-        return store.collect(sweep_dir)
-    return pd.read_parquet(frames_path), pd.read_parquet(runs_path)
+    """``frames`` and ``runs`` of a sweep, checked against its ``runs/`` folder and merged
+    again when missing or stale (:func:`experiments.store.load_sweep`; its
+    :class:`~experiments.store.StoreError` names a corrupt file)."""
+    return store.load_sweep(Path(sweep_dir))
 
 
 def sweep_overrides(sweep_dir: Path) -> list[str]:

@@ -50,7 +50,17 @@ def plot_reference(reference: pd.DataFrame) -> plt.Figure:
                     label="min closing speed")  # fmt: skip
     axes[1].set_ylabel("closing speed (m/s)")
     ttc = reference["ttc_ref_s"].where(np.isfinite(reference["ttc_ref_s"]))
+    sd = reference["ttc_ref_sd_s"]
+    axes[2].fill_between(reference["frame"], ttc - 2 * sd, ttc + 2 * sd, color="black",
+                         alpha=0.15, label="±2 sd")  # fmt: skip
     axes[2].plot(reference["frame"], ttc, "-o", ms=3, color="black")
+    shaky = ~reference["judgeable"].astype(bool) & ttc.notna()
+    axes[2].plot(reference.loc[shaky, "frame"], ttc[shaky], "o", ms=6, mfc="none",
+                 color="crimson", label="too uncertain to judge")  # fmt: skip
+    for regime, colour in zip(ev.REGIMES[1:], ("gold", "grey"), strict=True):
+        axes[0].fill_between(reference["frame"], 0, 1, where=reference["regime"] == regime,
+                             color=colour, alpha=0.2, label=regime,
+                             transform=axes[0].get_xaxis_transform())  # fmt: skip
     no_course = ~reference["collision_course"].astype(bool)
     axes[2].fill_between(reference["frame"], 0, 1, where=no_course, color="grey", alpha=0.2,
                          transform=axes[2].get_xaxis_transform(),
@@ -90,16 +100,18 @@ def plot_lidar_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
 
 
 def plot_heatmap(ranking: pd.DataFrame) -> plt.Figure:
-    """Detector × descriptor heatmaps of the best setting's outlier rate and median error."""
+    """Detector × descriptor heatmaps of the best setting's invalid rate and median MiD (the
+    ranking rule's two keys)."""
     best = ranking.sort_values("rank").drop_duplicates(["detector", "descriptor"])
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for ax, (col, label) in zip(
+    for ax, (col, label, fmt) in zip(
         axes,
-        (("camera_outlier_rate", "outlier rate"), ("camera_medae_rel", "median |rel. error|")),
+        (("camera_invalid_rate", "invalid rate", ".2f"),
+         ("camera_mid_median", "median MiD (1e-4 log ratio)", ".0f")),
         strict=True,
-    ):
+    ):  # fmt: skip
         grid = best.pivot(index="detector", columns="descriptor", values=col)
-        sns.heatmap(grid, annot=True, fmt=".2f", cmap="rocket_r", vmin=0, ax=ax,
+        sns.heatmap(grid, annot=True, fmt=fmt, cmap="rocket_r", vmin=0, ax=ax,
                     cbar_kws={"shrink": 0.8}, annot_kws={"size": 8})  # fmt: skip
         ax.set_title(f"{label} (best over the other axes)", fontsize=10)
     fig.suptitle("FP.6 camera TTC error by detector x descriptor (blank: invalid pair)")
@@ -145,7 +157,7 @@ def plot_pareto(ranking: pd.DataFrame) -> plt.Figure:
         **{time_col: ranking["ms_compute_per_frame"].fillna(ranking["ms_per_frame"])}
     )
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for ax, col in zip(axes, ("camera_outlier_rate", "camera_medae_rel"), strict=True):
+    for ax, col in zip(axes, ("camera_mid_median", "camera_outlier_rate"), strict=True):
         sns.scatterplot(data=ranking, x=time_col, y=col, hue="detector", style="descriptor",
                         s=40, ax=ax)  # fmt: skip
         front = ranking.iloc[ev.pareto_front(ranking[time_col].to_numpy(float),
@@ -159,4 +171,21 @@ def plot_pareto(ranking: pd.DataFrame) -> plt.Figure:
         ax.legend(fontsize=6, ncol=2)
     fig.suptitle("accuracy against time per frame")
     fig.tight_layout()
+    return fig
+
+
+def plot_rank_intervals(ranking: pd.DataFrame, n: int = 30) -> plt.Figure:
+    """The ``n`` best settings' rank (dot) and 90 % block-bootstrap rank interval (bar), best
+    at the top; the settings whose interval includes rank 1 (tied for first) in colour."""
+    top = ranking.nsmallest(n, "rank").iloc[::-1]
+    tied = (top["rank_lo"] <= 1).to_numpy()
+    y = np.arange(len(top))
+    fig, ax = plt.subplots(figsize=(8, 0.25 * len(top) + 1.2))
+    colours = np.where(tied, "tab:orange", "tab:blue")
+    ax.hlines(y, top["rank_lo"], top["rank_hi"], colors=colours, lw=3, alpha=0.6)
+    ax.scatter(top["rank"], y, c=colours, s=18, zorder=3)
+    ax.set_yticks(y, top["setting"], fontsize=7)
+    ax.set_xlabel("rank (90 % interval, moving-block bootstrap over frames)")
+    ax.set_title(f"{int(tied.sum())} of the top {len(top)} settings are tied for first", fontsize=9)
+    ax.grid(axis="x", alpha=0.3)
     return fig

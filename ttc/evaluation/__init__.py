@@ -13,6 +13,11 @@ submodules are the stages of judging:
 - :mod:`~ttc.evaluation.ranking`: the ranking rule;
 - :mod:`~ttc.evaluation.bootstrap`: rank intervals from a moving-block bootstrap;
 - :mod:`~ttc.evaluation.compare`: one setting in two sweeps;
+- :mod:`~ttc.evaluation.lead`: which box is the lead vehicle's (one rule for tables and
+  pictures);
+- :mod:`~ttc.evaluation.diagnosis`, :mod:`~ttc.evaluation.lidar_diagnosis`,
+  :mod:`~ttc.evaluation.camera_diagnosis`: the FP.5 and FP.6 rules that find implausible
+  frames and explain them, with their thresholds.
 """
 
 from ttc.evaluation.bootstrap import (
@@ -45,6 +50,7 @@ from ttc.evaluation.reference import (
     MAX_REF_REL_SD,
     MID_SCALE,
     REFERENCE_CAVEATS,
+    REFERENCE_SUMMARY,
     REGIMES,
     find_stop,
     lead_distance_series,
@@ -128,6 +134,7 @@ __all__ = [
     "OUTLIER_REL",
     "RANKING_RULE",
     "REFERENCE_CAVEATS",
+    "REFERENCE_SUMMARY",
     "SENSORS",
     "attach_reference",
     "bootstrap_rank_intervals",

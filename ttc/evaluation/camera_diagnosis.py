@@ -79,10 +79,10 @@ def camera_frame_table(
         return pd.DataFrame()
     table = judged_rows(frames, reference, chosen["run_id"])
     table = table.merge(chosen[["run_id", "setting"]], on="run_id")
-    ref_finite = np.isfinite(table["ttc_ref_s"]) & (table["ttc_ref_s"] > 0)
+    judged = table["judgeable"].astype(bool)  # finite reference TTC known to 10 %
     table["way_off"] = (
         table["camera_rel_err"].gt(WAY_OFF_REL)
-        | (ref_finite & ~(np.isfinite(table["ttc_camera"]) & table["ttc_camera"].gt(0)))
+        | (judged & ~(np.isfinite(table["ttc_camera"]) & table["ttc_camera"].gt(0)))
         | table["camera_false_alarm"].eq(1)
     )
     table["ratio_expected"] = 1.0 + table["dt"] / table["ttc_ref_s"]

@@ -345,8 +345,11 @@ def lidar_metrics(frames: pd.DataFrame, t: pd.DataFrame, reference: pd.DataFrame
     number of flagged frames."""
     ids = t["run_id"].unique()
     m = run_metrics(frames[frames["run_id"].isin(ids)], reference)
-    cols = ["dataset", "lidar_ttc", "lidar_outlier_rate", "lidar_medae_rel", "lidar_meanae_rel",
-            "lidar_false_alarm_rate", "lidar_jitter_s", "lidar_invalid", "n_frames"]  # fmt: skip
+    cols = ["dataset", "lidar_ttc", "lidar_invalid_rate", "lidar_mid_median",
+            "lidar_mid_median_approach", "lidar_mid_median_stopping",
+            "lidar_mid_median_stationary", "lidar_outlier_rate", "lidar_medae_rel",
+            "lidar_false_alarm_rate", "lidar_warn_precision", "lidar_warn_recall",
+            "lidar_jitter_s", "n_frames", "n_judged"]  # fmt: skip
     flags = t.groupby("run_id")["flagged"].sum().rename("flagged")
     out = m.merge(flags, on="run_id")[[*cols, "flagged"]]
     return out.sort_values(["dataset", "lidar_ttc"], ignore_index=True)

@@ -47,6 +47,16 @@ REAR_BAND = (0.05, 0.30)
 #: Closing speed (m/s) below which the reference says "no collision course" (+inf).
 MIN_CLOSING_SPEED_MPS = 0.1
 
+#: What the reference is, in two sentences (the reference report's opening).
+REFERENCE_SUMMARY = (
+    "The yardstick: the lead vehicle's rear distance from lidar alone (ego-lane crop, largest "
+    "vertical cluster, no camera detector), smoothed over the whole recording, and per frame "
+    "pair the value a two-frame constant-velocity estimator would output from the smoothed "
+    "distances of the two frames: the distance ratio D(k-1) / D(k) and TTC = D(k) dt / "
+    "(D(k-1) - D(k)). The stop is found from the data, so the smoothing does not lag it; "
+    "each frame pair carries a standard deviation from the fit's residual noise and a regime "
+    "(approach, stopping, stationary)."
+)
 #: Savitzky–Golay window (frames) and polynomial order of the approach smoothing.
 WINDOW = 9
 POLYORDER = 2
