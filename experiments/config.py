@@ -105,6 +105,7 @@ class RunConfig:
     cv_threads: int = 1  # OpenCV threads per job; jobs already use every core
     force: bool = False  # recompute a run even when its record says complete
     print_rows: int = 20
+    batch: str = ""  # set by the sweeper: this job runs the settings of <sweep>/.plan/<batch>.json
 
 
 def _writable(schema: type) -> DictConfig:

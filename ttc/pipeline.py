@@ -188,7 +188,14 @@ def run_setting(
                 rows.extend(_pair_rows(settings, frames, calib, dt, prev, curr, per_frame, match))
             else:
                 rows.append(_error_row(prev, curr, dt, broken.get(curr) or broken[prev]))
-    return pd.DataFrame.from_records(rows)
+    return finish_rows(settings, pd.DataFrame.from_records(rows))
+
+
+def finish_rows(settings: Settings, rows: pd.DataFrame) -> pd.DataFrame:
+    """A setting's rows once all its frame pairs are done: the place for work over a whole
+    run (e.g. fused TTC over the lead rows). :func:`run_setting` and the batched execution
+    (:func:`ttc.batch.run_settings`) both end with it, so both give the same rows."""
+    return rows
 
 
 @dataclass
