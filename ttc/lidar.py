@@ -103,3 +103,19 @@ def associate_lidar(
     lane = crop_to_lane(points, crop)
     uv = project_to_image(lane[:, :3], velo_to_image)
     return BoxPoints(points=lane, uv=uv, box=assign_points_to_boxes(uv, rois, shrink))
+
+
+def lead_box_of(owner: np.ndarray, n_boxes: int) -> int:
+    """The lead vehicle's box: the one holding most ego-lane points, or −1 when no box holds
+    any. The one rule of the pipeline's ``is_lead`` and of every picture.
+
+    Parameters
+    ----------
+    owner
+        (N,) int: box index per lane lidar point, −1 for a point in no box (or in two).
+    n_boxes
+        Number of boxes of the frame.
+    """
+    owner = np.asarray(owner)
+    counts = np.bincount(owner[owner >= 0], minlength=n_boxes)
+    return int(np.argmax(counts)) if n_boxes and counts.max(initial=0) > 0 else -1

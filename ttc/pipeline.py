@@ -39,7 +39,7 @@ from ttc.frames import (
 )
 from ttc.keypoint_filter import KeypointFilterParams, filter_box_matches
 from ttc.keypoints import X, Y
-from ttc.lidar import LaneCropParams, assign_points_to_boxes, project_to_image
+from ttc.lidar import LaneCropParams, assign_points_to_boxes, lead_box_of, project_to_image
 from ttc.lidar_ttc import LidarTTCParams, lidar_ttc
 from ttc.matching import MatcherParams, SelectorParams, select_matches
 from ttc.objects import ObjectDetectorParams
@@ -301,9 +301,7 @@ def _pair_rows(
         return uv, {i: assign_points_to_boxes(uv[i], obj[i]["roi"], s.lidar_shrink) for i in uv}
 
     (uv, owners), ms_assoc = _timed(associate)
-    n_curr_boxes = len(obj[curr]["roi"])
-    counts_curr = np.bincount(owners[curr][owners[curr] >= 0], minlength=n_curr_boxes)
-    lead_box = int(np.argmax(counts_curr)) if n_curr_boxes and counts_curr.max() > 0 else -1
+    lead_box = lead_box_of(owners[curr], len(obj[curr]["roi"]))
 
     box_pairs = list(zip(box_matches.prev_box.tolist(), box_matches.curr_box.tolist(), strict=True))
     shared = dict(zip(box_matches.curr_box.tolist(), box_matches.shared.tolist(), strict=True))
@@ -323,7 +321,7 @@ def _pair_rows(
         "scan_dropped_curr": int(lane[curr]["n_dropped"]),
         "lane_points_curr": int(len(lane[curr]["points"])),
         "boxes_prev": len(obj[prev]["roi"]),
-        "boxes_curr": n_curr_boxes,
+        "boxes_curr": len(obj[curr]["roi"]),
         "keypoints_prev": int(per_frame["keypoints"][prev].arrays["keypoints"].shape[0]),
         "keypoints_curr": int(per_frame["keypoints"][curr].arrays["keypoints"].shape[0]),
         "described_curr": int(kp_curr.shape[0]),

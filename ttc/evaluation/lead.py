@@ -13,22 +13,8 @@ import numpy as np
 import pandas as pd
 
 from ttc.evaluation import lead_rows
+from ttc.lidar import lead_box_of  # noqa: F401  (the rule, re-exported)
 from ttc.pipeline import PairDetail
-
-
-def lead_box_of(owner: np.ndarray, n_boxes: int) -> int:
-    """The box holding most lane points, or −1 when no box holds any.
-
-    Parameters
-    ----------
-    owner
-        (N,) int: box index per lane lidar point, −1 for a point in no box (or in two).
-    n_boxes
-        Number of boxes of the frame.
-    """
-    owner = np.asarray(owner)
-    counts = np.bincount(owner[owner >= 0], minlength=n_boxes)
-    return int(np.argmax(counts)) if n_boxes and counts.max(initial=0) > 0 else -1
 
 
 def lead_row(detail: PairDetail) -> pd.Series:
