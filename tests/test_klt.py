@@ -13,7 +13,17 @@ import pytest
 from ttc.frames import read_image
 from ttc.keypoints import FastParams, ShiTomasiParams, detect_keypoints
 from ttc.klt import KltParams, Tracks, forward_backward_error, track_keypoints
-from ttc.matching import MATCHER_PARAMS, tracks_to_matches, uses_descriptors
+from ttc.matching import (
+    MATCHER_PARAMS,
+    NO_SELECTOR,
+    SelectorParams,
+    current_keypoints,
+    is_tracks,
+    pair_matches,
+    tracks_to_arrays,
+    tracks_to_matches,
+    uses_descriptors,
+)
 
 HEIGHT, WIDTH = 240, 320  # px
 SCALE, SHIFT = 1.007, (2.3, -1.7)  # the lead car's ~0.7 % per frame, a sub-pixel shift (px)
@@ -100,6 +110,14 @@ def test_klt_is_a_matcher_without_descriptors(synthetic) -> None:
     np.testing.assert_array_equal(m.prev_idx, tracks.prev_idx)
     np.testing.assert_array_equal(m.curr_idx, np.arange(len(tracks)))
     assert m.prev_idx.dtype == m.curr_idx.dtype == np.int32 and m.distance.dtype == np.float32
+    entry = tracks_to_arrays(tracks)  # the matches-stage entry the pipeline caches
+    assert is_tracks(entry) and not is_tracks({"idx": np.zeros((0, 2)), "dist": np.zeros((0, 2))})
+    from_entry = pair_matches(entry, NO_SELECTOR)
+    np.testing.assert_array_equal(from_entry.prev_idx, m.prev_idx)
+    np.testing.assert_array_equal(current_keypoints(kps, entry), tracks.keypoints_curr)
+    candidates = {"idx": np.array([[3, 1]], np.int32), "dist": np.array([[1.0, 9.0]], np.float32)}
+    assert current_keypoints(kps, candidates) is kps
+    assert pair_matches(candidates, SelectorParams()).curr_idx.tolist() == [3]
     assert len(track_keypoints(prev, curr, kps[:0], KltParams())) == 0
     assert isinstance(Tracks.empty(), Tracks)
     with pytest.raises(ValueError, match="sizes differ"):

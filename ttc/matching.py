@@ -31,6 +31,7 @@ index pairs) and ``matcher=custom`` calls your own k = 2 candidate function
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any
@@ -268,3 +269,34 @@ def match_descriptors(
     """:func:`knn_candidates` followed by :func:`select_matches`."""
     idx, dist = knn_candidates(desc_prev, desc_curr, binary, matcher)
     return select_matches(idx, dist, selector)
+
+
+#: The arrays of a matches-stage entry of a tracking matcher (else ``idx`` and ``dist``).
+TRACK_ARRAYS = ("prev_idx", "keypoints", "fb_error")
+
+
+def tracks_to_arrays(tracks: Tracks) -> dict[str, np.ndarray]:
+    """The matches-stage entry of KLT tracks (:data:`TRACK_ARRAYS`)."""
+    return dict(zip(TRACK_ARRAYS, (tracks.prev_idx, tracks.keypoints_curr, tracks.fb_error),
+                    strict=True))  # fmt: skip
+
+
+def is_tracks(match_arrays: Mapping[str, np.ndarray]) -> bool:
+    """True for a matches-stage entry of a tracking matcher (KLT tracks)."""
+    return TRACK_ARRAYS[0] in match_arrays
+
+
+def pair_matches(match_arrays: Mapping[str, np.ndarray], selector: Any) -> Matches:
+    """The matches of a frame pair from its matches-stage entry: ``selector`` applied to k = 2
+    candidates (``idx``, ``dist``), or KLT tracks as matches (the selector unused)."""
+    if is_tracks(match_arrays):
+        return tracks_to_matches(Tracks(*(match_arrays[k] for k in TRACK_ARRAYS)))
+    return select_matches(match_arrays["idx"], match_arrays["dist"], selector)
+
+
+def current_keypoints(
+    described_curr: np.ndarray, match_arrays: Mapping[str, np.ndarray]
+) -> np.ndarray:
+    """The current frame's keypoints (N, 7) that :func:`pair_matches`' ``curr_idx`` index: the
+    described keypoints, or the tracked positions of KLT tracks."""
+    return match_arrays["keypoints"] if is_tracks(match_arrays) else described_curr
