@@ -24,10 +24,14 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from experiments.collect import summarise_sweep
 from experiments.config import data_root
-from experiments.run import record_crash
-from experiments.store import PROGRESS_DIR, PROGRESS_ENV, StoreError, progress_dir
+from experiments.store import (
+    PROGRESS_DIR,
+    PROGRESS_ENV,
+    StoreError,
+    progress_dir,
+    progress_outcomes,
+)
 
 
 def count_jobs(config: DictConfig) -> int | None:
@@ -90,7 +94,7 @@ class SweepCallback(Callback):
         ) as bar:
             while True:
                 stopping = stop.wait(self.poll_seconds)
-                done = sum(1 for _ in progress.iterdir())
+                done = len(progress_outcomes(progress))
                 bar.update(done - bar.n)
                 if stopping:
                     return
@@ -100,6 +104,8 @@ class SweepCallback(Callback):
         died: the launcher reports that) as ``failed`` with the reason."""
         if job_return.status != JobStatus.FAILED:
             return
+        from experiments.run import record_crash  # noqa: PLC0415 (slow imports)
+
         error = job_return._return_value
         message = f"{type(error).__name__}: {error}" if error is not None else "job failed"
         record_crash(config, Path(config.hydra.sweep.dir), message)
@@ -109,16 +115,21 @@ class SweepCallback(Callback):
         if _PROGRESS:
             _PROGRESS.pop("stop").set()
             _PROGRESS.pop("thread").join(timeout=10)
+        from experiments.collect import summarise_sweep  # noqa: PLC0415 (slow imports)
+
         sweep_dir = Path(config.hydra.sweep.dir)
         problems = []
+        outcomes = progress_outcomes(progress_dir(sweep_dir))
+        unchanged = set(outcomes) <= {"resumed"}
         try:
             summarise_sweep(
-                sweep_dir, data_dir=data_root(config), cache_dir=Path(str(config.cache.dir))
+                sweep_dir,
+                data_dir=data_root(config),
+                cache_dir=Path(str(config.cache.dir)),
+                unchanged=unchanged,
             )
         except (StoreError, OSError) as exc:
             problems.append(f"merge failed, no {sweep_dir}/frames.parquet: {exc}")
-        progress = progress_dir(sweep_dir)
-        outcomes = [p.read_text() for p in progress.iterdir()] if progress.is_dir() else []
         if (failed := outcomes.count("failed")) > 0:
             problems.append(f"{failed} setting(s) failed (listed above); a re-run retries them")
         if problems:

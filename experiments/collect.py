@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 
 from experiments import store
 from experiments.reference_store import runs_reference
@@ -67,20 +68,34 @@ def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path |
         return None
 
 
+def lead_rows(sweep_dir: Path) -> pd.DataFrame:
+    """The lead vehicle's rows of a merged sweep (read by row group, not the whole file)."""
+    path = Path(sweep_dir) / store.FRAMES_FILE
+    return pq.read_table(path, filters=[("is_lead", "==", True)]).to_pandas()
+
+
 def summarise_sweep(
     sweep_dir: Path,
     top: int = 5,
     data_dir: Path | None = None,
     cache_dir: Path | None = None,
+    unchanged: bool = False,
 ) -> pd.DataFrame:
     """Collect the sweep (:class:`store.StoreError` naming a corrupt rows file), print where
     the dataset is, the run counts, the failures and the best settings: ranked against the
     reference TTC (:mod:`ttc.evaluation`), or by the interim camera-vs-lidar score when no
     reference can be built (a ranking that raises is reported in one line: the merged data
-    stands). ``data_dir`` / ``cache_dir``: None for the configured defaults."""
-    frames, runs = store.collect(sweep_dir)
+    stands). ``data_dir`` / ``cache_dir``: None for the configured defaults.
+
+    Only the lead rows are loaded (the ranking's rows), so a sweep of millions of rows is
+    summarised without loading it whole. ``unchanged=True`` (nothing was computed and the
+    merge is current): counts only, no ranking (it would be the one printed before)."""
+    sweep_dir = Path(sweep_dir)
+    unchanged = unchanged and store.merge_is_current(sweep_dir)
+    runs = pd.read_parquet(sweep_dir / store.RUNS_FILE) if unchanged else store.merge(sweep_dir)
+    n_rows = pq.ParquetFile(sweep_dir / store.FRAMES_FILE).metadata.num_rows
     counts = runs["status"].value_counts() if not runs.empty else pd.Series(dtype=int)
-    print(f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({len(frames)} rows)")
+    print(f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({n_rows} rows)")
     print(f"run records:   {sweep_dir / store.RUNS_FILE}")
     print(
         f"settings: {len(runs)} total, {counts.get('ok', 0)} ok, "
@@ -88,7 +103,7 @@ def summarise_sweep(
     )
     progress = store.progress_dir(sweep_dir)
     if progress.is_dir():
-        outcomes = pd.Series([p.read_text() for p in progress.iterdir()], dtype=str)
+        outcomes = pd.Series(store.progress_outcomes(progress), dtype=str)
         print(
             f"this invocation: {int((outcomes != 'resumed').sum())} computed, "
             f"{int((outcomes == 'resumed').sum())} already complete (resumed)"
@@ -99,6 +114,10 @@ def summarise_sweep(
         for _, run in runs[runs["n_frame_errors"].fillna(0) > 0].iterrows():
             print(f"  frame errors in {run['run_id']} (retried when the input changes): "
                   f"{run['message']}")  # fmt: skip
+    if unchanged:
+        print(f"\n(nothing computed: `python -m experiments.collect {sweep_dir}` ranks it)")
+        return pd.DataFrame()
+    frames = lead_rows(sweep_dir) if n_rows else pd.DataFrame()
     if frames.empty:
         return pd.DataFrame()
     try:

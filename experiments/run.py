@@ -6,10 +6,13 @@ Examples::
     python -m experiments.run +experiment=fp6_grid            # the main sweep (multirun)
     python -m experiments.run -m detector=fast,orb matcher=glob(*) sweep_name=mine
 
-One job = one setting: its rows go to ``<sweep>/runs/<run_id>.parquet`` and its record
-(resolved config, code and package versions, timings, status, rows checksum, identities of
-the input files read) to ``<run_id>.json``. A complete run (:func:`store.incomplete_reason`)
-is not computed again (resume); any other is recomputed with a line saying why. Invalid
+A job is one setting, or in a sweep a batch of settings that share their expensive stages
+(``batch=<id>``, planned by the sweeper: :mod:`experiments.plan`, run by
+:mod:`experiments.batch`). A setting's rows go to ``<sweep>/runs/<run_id>.parquet`` (its
+batch's rows file in a batch) and its record (resolved config, code and package versions,
+timings, status, rows checksum, identities of the input files read) to ``<run_id>.json``.
+The sweeper launches no job for a complete run (:func:`store.incomplete_reason`), and a job
+checks again (resume); any other is recomputed with a line saying why. Invalid
 detector × descriptor pairs are recorded as ``skipped``, any other exception as ``failed``:
 neither stops a sweep. A single run whose setting failed exits 1; a sweep exits 1 at its end
 when a setting failed (:mod:`experiments.callbacks`).
@@ -17,9 +20,6 @@ when a setting failed (:mod:`experiments.callbacks`).
 
 from __future__ import annotations
 
-import datetime as dt
-import json
-import resource
 import sys
 import time
 import traceback
@@ -34,6 +34,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from experiments import store
+from experiments.batch import run_batch
 from experiments.config import (
     config_problems,
     data_root,
@@ -44,7 +45,7 @@ from experiments.config import (
     setting_hash,
     settings_from_config,
 )
-from experiments.provenance import code_version, machine, package_versions
+from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
 from ttc.cache import StageCache
 from ttc.descriptors import InvalidCombinationError
 from ttc.pipeline import AXES, input_files, run_setting
@@ -58,14 +59,6 @@ def output_dir() -> Path:
     return Path(hc.sweep.dir if hc.mode == RunMode.MULTIRUN else hc.run.dir)
 
 
-def _now() -> str:
-    return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
-
-
-def _axis_values(cfg: DictConfig) -> dict[str, str]:
-    return {axis: str(cfg[axis].name) for axis in AXES}
-
-
 def check_data(cfg: DictConfig) -> None:
     """Exit with a plain message when the data root is missing."""
     sequence_dir = data_root(cfg) / cfg.dataset.sequence
@@ -75,21 +68,7 @@ def check_data(cfg: DictConfig) -> None:
 
 def base_record(cfg: DictConfig, sweep_dir: Path) -> dict[str, Any]:
     """The parts of a run record known before the run: ids, setting, versions, machine."""
-    setting = setting_config(cfg)
-    return {
-        "run_id": setting_hash(setting),
-        "sweep_id": sweep_dir.name,
-        **_axis_values(cfg),
-        "first_frame": int(cfg.dataset.first),
-        "last_frame": int(cfg.dataset.last),
-        "step": int(cfg.dataset.step),
-        "config": json.dumps(setting, sort_keys=True),
-        **code_version(),
-        **{f"version_{k}": v for k, v in package_versions().items()},
-        **machine(),
-        "cache_enabled": bool(cfg.cache.enabled),
-        "start": _now(),
-    }
+    return record_head(setting_config(cfg), sweep_dir.name, bool(cfg.cache.enabled))
 
 
 def setting_label(cfg: DictConfig) -> str:
@@ -141,21 +120,14 @@ def _compute(cfg: DictConfig, sweep_dir: Path) -> dict[str, Any]:
     record.update(
         status=status,
         message=message,
-        end=_now(),
+        end=now(),
         wall_s=time.perf_counter() - start,
-        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        peak_rss_mb=peak_rss_mb(),
         n_rows=0 if rows is None else len(rows),
     )
     if rows is not None:
-        rows = _with_run_columns(rows, record)
-        cached = rows[[c for c in rows if c.startswith("cached_")]].to_numpy()
-        record["stages_computed"] = int((~cached).sum())
-        errors = rows.loc[rows["error"] != "", ["frame", "error"]].drop_duplicates("frame")
-        record["n_frame_errors"] = len(errors)
-        if len(errors):
-            record["message"] = f"{len(errors)} frame pair(s) with frame_error: " + "; ".join(
-                f"frame {f}: {e}" for f, e in errors.head(3).itertuples(index=False)
-            )
+        rows = with_run_columns(rows, record)
+        row_statistics(record, rows)
     record["rows"] = rows
     return record
 
@@ -166,7 +138,7 @@ def record_crash(cfg: DictConfig, sweep_dir: Path, message: str) -> dict[str, An
     record = base_record(cfg, sweep_dir)
     if store.is_complete(sweep_dir, record["run_id"]):  # died after finishing its run
         return store.read_record(sweep_dir, record["run_id"]) or record
-    record.update(status="failed", message=message, end=_now(), n_rows=0, crashed=True)
+    record.update(status="failed", message=message, end=now(), n_rows=0, crashed=True)
     store.save_run(sweep_dir, record, None)
     mark_progress(sweep_dir, record)
     return record
@@ -174,16 +146,8 @@ def record_crash(cfg: DictConfig, sweep_dir: Path, message: str) -> dict[str, An
 
 def mark_progress(sweep_dir: Path, record: dict[str, Any]) -> None:
     """Tell the sweep's progress bar and summary that this job is finished."""
-    marker = store.progress_dir(sweep_dir) / record["run_id"]
-    marker.parent.mkdir(parents=True, exist_ok=True)
-    marker.write_text("resumed" if record.get("resumed") else str(record.get("status")))
-
-
-def _with_run_columns(rows: pd.DataFrame, record: dict[str, Any]) -> pd.DataFrame:
-    """Prefix the rows with the run id, sweep id, axis values and code version."""
-    front = {k: record[k] for k in ("run_id", "sweep_id", *AXES)}
-    front["git_commit"] = record["git_commit"]
-    return pd.concat([pd.DataFrame(front, index=rows.index), rows], axis=1)
+    outcome = "resumed" if record.get("resumed") else str(record.get("status"))
+    store.mark_progress(sweep_dir, record["run_id"], [outcome])
 
 
 SUMMARY_COLUMNS = ["frame", "curr_box", "ttc_lidar", "ttc_camera", "lidar_reason",
@@ -198,6 +162,12 @@ def main(cfg: DictConfig) -> None:
         if problems:
             sys.exit("invalid configuration:\n  " + "\n  ".join(problems))
     sweep_dir = output_dir()
+    if cfg.batch:  # a batch of settings planned by the sweeper (experiments.plan)
+        for record in run_batch(cfg, sweep_dir):
+            if record.get("status") == "failed" and not record.get("resumed"):
+                label = " ".join(f"{a}={record.get(a)}" for a in AXES[:8])
+                print(f"\n[{record['run_id']}] failed: {label}\n  {record['message']}")
+        return
     result = run_job(cfg, sweep_dir)
     label = " ".join(f"{a}={result.get(a)}" for a in AXES[:8])
     if multirun:

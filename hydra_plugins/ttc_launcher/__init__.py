@@ -77,6 +77,8 @@ ConfigStore.instance().store(
     group="hydra/launcher", name="ttc_joblib", node=TTCLauncherConf, provider="ttc"
 )
 
+#: The override naming the batch a job computes (``experiments.plan``).
+BATCH_PREFIX = "batch="
 #: Keys of the Hydra node that a job's overrides change (besides ``runtime.choices``).
 JOB_KEYS = ("overrides.task", "job.override_dirname", "job.id", "job.num")
 
@@ -140,8 +142,16 @@ class JobComposer:
         return self.parts[memo]
 
     def compose(self, overrides: Sequence[str]) -> DictConfig:
-        """The config of the job with these overrides."""
+        """The config of the job with these overrides (a batch's ``batch=<id>``, a plain
+        string each batch has its own of, is set on the composed config)."""
         overrides = list(overrides)
+        batch = [o for o in overrides if o.startswith(BATCH_PREFIX)]
+        if batch:
+            cfg = self.compose([o for o in overrides if not o.startswith(BATCH_PREFIX)])
+            with open_dict(cfg):
+                cfg.batch = batch[-1][len(BATCH_PREFIX) :]
+                cfg.hydra.overrides.task.extend(batch)
+            return cfg
         if self.base is None:
             self.template, self.base = overrides, self.full(overrides)
             self.base_container = OmegaConf.to_container(self.base, resolve=False)
@@ -289,12 +299,20 @@ class TTCLauncher(JoblibLauncher):
     def _alone(
         self, idx: int, overrides: list[str], key: str, payload: bytes, started: Path
     ) -> JobReturn:
-        """Run one job alone in a fresh worker; a job that kills it is reported FAILED."""
+        """Run one job alone in a fresh worker; a job that kills it is reported FAILED. A
+        batch that kills it is run again a setting at a time (each alone), so the setting that
+        dies costs only itself."""
         executor = get_reusable_executor(max_workers=1, kill_workers=True)
         try:
             return executor.submit(execute_job, idx, overrides, key, payload, str(started)).result()
         except TerminatedWorkerError as exc:
             message = worker_death(exc)
+        members = self._batch_members(overrides)
+        if members:
+            log.warning(f"job #{idx} (a batch of {len(members)}): {message}; one by one now")
+            returns = [self._alone(idx, m, key, payload, started) for m in members]
+            failed = [r for r in returns if r.status == JobStatus.FAILED]
+            return failed[0] if failed else returns[0]
         log.error(f"job #{idx} ({' '.join(overrides)}): {message}")
         assert self.hydra_context is not None and self.config is not None
         cfg = self.hydra_context.config_loader.load_sweep_config(self.config, overrides)
@@ -309,6 +327,17 @@ class TTCLauncher(JoblibLauncher):
         )
         self.hydra_context.callbacks.on_job_end(config=cfg, job_return=ret)
         return ret
+
+    def _batch_members(self, overrides: list[str]) -> list[list[str]]:
+        """The overrides of each setting of a batch job (none for a one-setting job)."""
+        batch = [o[len(BATCH_PREFIX) :] for o in overrides if o.startswith(BATCH_PREFIX)]
+        if not batch:
+            return []
+        from experiments.plan import read_plan  # noqa: PLC0415
+
+        assert self.config is not None
+        plan = read_plan(Path(str(self.config.hydra.sweep.dir)), batch[-1])
+        return [list(m["overrides"]) for m in plan["members"]]
 
 
 def _indexed(

@@ -3,12 +3,19 @@ types *and values*, and Hydra's partial-failure convention.
 
 Hydra's basic sweeper composes every job's config in the main process before launching any
 (``validate_batch_is_legal``), ~0.15 s each with this config tree: 25 s of serial work for
-the 168-setting ``fp6_grid``, longer than the rest of a warm sweep. This sweeper composes
-just enough configs that every distinct override value appears in one of them (the k-th
-config takes the k-th distinct value of every swept key), plus one per distinct combination
-of the ``dataset`` overrides (frame ranges are checked across their keys): a typo in any key
-or value, and any value the ``validator`` (``experiments.config.validate_config``: parameter
+the 168-setting ``fp6_grid``, longer than the rest of a warm sweep. This sweeper composes the
+first job and one variant per further value of each swept key (the first job with that
+value; the planner reads the same compositions), plus one per distinct combination of the
+``dataset`` overrides (frame ranges are checked across their keys): a typo in any key or
+value, and any value the ``validator`` (``experiments.config.validate_config``: parameter
 ranges, frame range, data present) refuses, fails with Hydra's message before any job runs.
+
+Before launching, it plans the sweep (:mod:`experiments.plan`): settings whose run is
+complete are dropped (resume before launch: a finished sweep starts no worker), invalid
+detector × descriptor pairs are recorded as skipped once per pair, and the other settings
+are grouped into batches that share their expensive stages, one job per batch (at most
+``max_settings_per_job`` settings; 1 gives one setting per job). It prints the plan in one
+line.
 
 Jobs that fail (the task raised, or the launcher reports that the worker died) do not stop
 the sweep: every job of the batch runs, the failures are logged, and the callbacks' end of
@@ -29,7 +36,6 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.errors import ConfigCompositionException
-from hydra.plugins.sweeper import Sweeper
 from hydra.utils import get_method
 from omegaconf import OmegaConf
 
@@ -41,6 +47,8 @@ class TTCSweeperConf(BasicSweeperConf):
     _target_: str = "hydra_plugins.ttc_sweeper.TTCSweeper"
     #: Dotted path of a function(cfg) raising ValueError for a config whose values are wrong.
     validator: Optional[str] = "experiments.config.validate_config"  # noqa: UP045 (Hydra)
+    #: Most settings one job computes together (1: one setting per job, no batches).
+    max_settings_per_job: int = 200
 
 
 ConfigStore.instance().store(group="hydra/sweeper", name="ttc", node=TTCSweeperConf, provider="ttc")
@@ -95,20 +103,43 @@ class TTCSweeper(BasicSweeper):
     """:class:`BasicSweeper` validating a few compositions, values included, and running
     every job even when some fail."""
 
-    def __init__(self, max_batch_size: Optional[int], params: Any = None, validator=None):  # noqa: UP045
+    def __init__(
+        self,
+        max_batch_size: Optional[int],  # noqa: UP045
+        params: Any = None,
+        validator=None,
+        max_settings_per_job: int = 200,
+    ):
         super().__init__(max_batch_size=max_batch_size, params=params)
         self.validator = validator
+        self.max_settings_per_job = max_settings_per_job
+        self.planner: Any = None
+
+    def _planner(self) -> Any:
+        """The sweep's :class:`experiments.plan.SettingPlanner` (its compositions are shared
+        by validation and planning)."""
+        from experiments.plan import Compositions, SettingPlanner  # noqa: PLC0415
+
+        if self.planner is None:
+            assert self.config is not None and self.hydra_context is not None
+            compositions = Compositions(self.hydra_context.config_loader, self.config)
+            self.planner = SettingPlanner(compositions)
+        return self.planner
 
     def validate_batch_is_legal(self, batch: Sequence[Sequence[str]]) -> None:
-        jobs = representative_jobs(batch)
+        """Compose (Hydra) and validate the first job, one variant per further value of each
+        swept key (:func:`experiments.plan.variant_jobs`, the configs the planner reads too)
+        and every combination of the ``dataset`` overrides."""
+        from experiments.plan import variant_jobs  # noqa: PLC0415
+
+        jobs = variant_jobs(batch)
         jobs += [j for j in group_combination_jobs(batch, "dataset") if j not in jobs]
-        if not self.validator:
-            Sweeper.validate_batch_is_legal(self, jobs)
-            return
-        validate = get_method(self.validator)
-        loader = self.hydra_context.config_loader
+        compositions = self._planner().composer
+        validate = get_method(self.validator) if self.validator else None
         for overrides in jobs:
-            cfg = loader.load_sweep_config(master_config=self.config, sweep_overrides=overrides)
+            cfg = compositions.full(overrides)
+            if validate is None:
+                continue
             try:
                 validate(cfg)
             except ValueError as exc:
@@ -130,13 +161,24 @@ class TTCSweeper(BasicSweeper):
         while not self.is_done():
             batch = self.get_job_batch()
             self.validate_batch_is_legal(batch)
-            results = self.launcher.launch(batch, initial_job_idx=initial_job_idx)
+            jobs = self.plan(batch, sweep_dir)
+            results = self.launcher.launch(jobs, initial_job_idx=initial_job_idx) if jobs else []
             for r in results:
                 if r.status == JobStatus.FAILED:
                     log.error(f"job {' '.join(r.overrides)} failed: {r._return_value}")
-            initial_job_idx += len(batch)
+            initial_job_idx += len(jobs)
             returns.append(results)
         return returns
+
+    def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> list[list[str]]:
+        """The jobs to launch for ``batch`` (:func:`experiments.plan.make_plan`), printed."""
+        from experiments.plan import make_plan  # noqa: PLC0415
+
+        assert self.config is not None
+        limit = max(1, self.max_settings_per_job)
+        plan = make_plan(batch, self._planner(), self.config, sweep_dir, limit)
+        print(plan.summary(), flush=True)
+        return plan.jobs
 
 
 __all__ = ["TTCSweeper", "TTCSweeperConf", "group_combination_jobs", "representative_jobs"]

@@ -1,0 +1,123 @@
+"""One batch of settings in one job (``batch=<id>``, planned by :mod:`experiments.plan`).
+
+The batch's settings run together through :func:`ttc.batch.run_settings` (expensive stages
+streamed once per upstream group, FP.1–FP.4 pieces computed once per pair for the settings
+that share them). What users rely on stays per setting: each setting keeps its run id and
+gets its own record with its resolved config; a complete setting is resumed, a setting
+that raises is recorded as ``failed`` (``skipped`` for an invalid pair) without touching the
+others. The rows of the batch's ok settings go to one file, ``runs/<batch>-<sha>.parquet``,
+that each of their records names (``rows_file``); the merged dataset is the same.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import cv2
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+
+from experiments import store
+from experiments.config import frame_range_from_config, settings_from_config
+from experiments.plan import read_plan
+from experiments.records import now, peak_rss_mb, record_head, row_statistics
+from ttc.batch import MEMBER, run_settings
+from ttc.cache import StageCache
+from ttc.descriptors import InvalidCombinationError
+from ttc.pipeline import AXES, input_files
+
+
+def run_batch(cfg: DictConfig, sweep_dir: Path) -> list[dict[str, Any]]:
+    """Compute the incomplete settings of batch ``cfg.batch`` and store their rows and
+    records; return every member's record (``resumed`` set for those already complete).
+
+    One process computes a batch at a time (:func:`store.run_lock` on the batch id); each
+    member's completeness is checked under the lock.
+    """
+    plan = read_plan(sweep_dir, cfg.batch)
+    members = plan["members"]
+    label = f"{cfg.batch} ({len(members)} settings)"
+    with store.run_lock(sweep_dir, cfg.batch, label):
+        todo, done, checks = [], [], store.Checks()
+        for member in members:
+            reason = store.incomplete_reason(sweep_dir, member["run_id"], checks)
+            if not cfg.force and reason is None:
+                record = store.read_record(sweep_dir, member["run_id"]) or {}
+                done.append({**record, "resumed": True})
+                continue
+            if reason not in (None, store.NO_RECORD) and not cfg.force:
+                print(f"[{member['run_id']}] recomputing: {reason}", flush=True)
+            todo.append({**member, "reason": reason})
+        records = _compute(cfg, sweep_dir, todo) if todo else []
+    outcomes = ["resumed"] * len(done) + [str(r["status"]) for r in records]
+    store.mark_progress(sweep_dir, cfg.batch, outcomes)
+    return done + records
+
+
+def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> list[dict]:
+    """Run the members of ``todo`` together; save and return their records."""
+    cv2.setNumThreads(int(cfg.cv_threads))
+    start = time.perf_counter()
+    records = [record_head(m["setting"], sweep_dir.name, bool(cfg.cache.enabled)) for m in todo]
+    errors: dict[int, BaseException] = {}
+    settings = []
+    for i, member in enumerate(todo):
+        try:
+            settings.append(settings_from_config(OmegaConf.create(member["setting"])))
+        except Exception as exc:  # a bad value costs only its setting
+            errors[i] = exc
+            settings.append(None)
+    valid = [i for i, s in enumerate(settings) if s is not None]
+    rows = pd.DataFrame()
+    try:
+        frames = frame_range_from_config(cfg)
+        inputs = store.input_identities(input_files(settings[valid[0]], frames)) if valid else ""
+        cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)
+        rows, failed = run_settings([settings[i] for i in valid], frames, cache)
+        errors.update({valid[k]: exc for k, exc in failed.items()})
+        if len(rows):
+            rows[MEMBER] = rows[MEMBER].map(dict(enumerate(valid)))
+    except Exception as exc:  # the batch's shared part raised: every member fails with it
+        errors.update(dict.fromkeys(valid, exc))
+    wall = time.perf_counter() - start
+    rows = _with_run_columns(rows, records)
+    counts = rows[MEMBER].value_counts() if len(rows) else pd.Series(dtype=int)
+    for i, (member, record) in enumerate(zip(todo, records, strict=True)):
+        _outcome(record, errors.get(i), int(counts.get(i, 0)), wall / len(todo))
+        record.update(batch_id=cfg.batch, batch_size=len(todo), batch_wall_s=wall)
+        if member["reason"] not in (None, store.NO_RECORD):
+            record["recomputed_because"] = member["reason"]
+        if record["status"] == "ok":
+            record["inputs"] = inputs
+            row_statistics(record, rows[rows[MEMBER] == i])
+    ok = {i for i, r in enumerate(records) if r["status"] == "ok"}
+    rows = rows[rows[MEMBER].isin(ok)] if len(rows) else rows
+    store.save_batch(sweep_dir, cfg.batch, records, rows.drop(columns=MEMBER, errors="ignore"))
+    return records
+
+
+def _outcome(record: dict, error: BaseException | None, n_rows: int, wall_s: float) -> None:
+    """Status, message and end of a member's record."""
+    if error is None:
+        status, message = "ok", ""
+    elif isinstance(error, InvalidCombinationError):
+        status, message = "skipped", str(error)
+    else:
+        status = "failed"
+        message = "".join(traceback.format_exception_only(error)).strip()
+        record["traceback"] = "".join(traceback.format_exception(error, limit=8))
+    record.update(status=status, message=message, end=now(), wall_s=wall_s,
+                  peak_rss_mb=peak_rss_mb(), n_rows=n_rows if status == "ok" else 0)  # fmt: skip
+
+
+def _with_run_columns(rows: pd.DataFrame, records: list[dict[str, Any]]) -> pd.DataFrame:
+    """Prefix the rows with their run's id, sweep id, axis values and code version (the
+    columns :func:`experiments.records.with_run_columns` gives a run's own rows)."""
+    if not len(rows):
+        return rows
+    keys = ("run_id", "sweep_id", *AXES, "git_commit")
+    front = {k: rows[MEMBER].map({i: r[k] for i, r in enumerate(records)}) for k in keys}
+    return pd.concat([pd.DataFrame(front, index=rows.index), rows], axis=1)

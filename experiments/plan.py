@@ -1,0 +1,240 @@
+"""The sweep plan, made by the sweeper before any worker starts.
+
+For every job of a sweep it finds the setting and its run id without composing the job's
+config with Hydra (:class:`SettingPlanner`), then:
+
+1. drops settings whose run is complete (resume before launch; ``force=true`` keeps them);
+2. records the settings of an invalid detector × descriptor pair as ``skipped``, checking
+   each pair once;
+3. groups the rest into batches of settings that share their expensive stages (same
+   detector, descriptor, objects, lane crop and frames; :data:`BATCH_FREE_AXES` vary within
+   a batch), at most :data:`MAX_BATCH` settings each, and writes each batch's settings to
+   ``<sweep>/.plan/<batch id>.json``.
+
+A batch of one setting is launched as that setting's own job (exactly as without batches);
+a larger one as one job with ``batch=<batch id>`` (:mod:`experiments.batch` runs it).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+
+from experiments import store
+from experiments.config import setting_config, setting_hash
+from experiments.records import now, peak_rss_mb, record_head
+from ttc.descriptors import check_pair
+
+PLAN_DIR = ".plan"
+#: Axes whose values share the cached stages: settings differing only in these form a batch.
+BATCH_FREE_AXES = ("matcher", "selector", "box_matching", "lidar_ttc", "keypoint_filter",
+                   "camera_ttc", "fusion")  # fmt: skip
+#: Most settings in one batch (bounds a worker's memory: a batch's rows are held until saved).
+MAX_BATCH = 200
+
+
+class Compositions:
+    """Hydra's compositions of job configs, each made once (the sweeper validates the same
+    configs the planner reads)."""
+
+    def __init__(self, loader: Any, master: DictConfig) -> None:
+        self.loader, self.master = loader, master
+        self.memo: dict[tuple[str, ...], DictConfig] = {}
+
+    def full(self, overrides: Sequence[str]) -> DictConfig:
+        """The config Hydra composes for a job with these overrides."""
+        key = tuple(overrides)
+        if key not in self.memo:
+            self.memo[key] = self.loader.load_sweep_config(self.master, list(overrides))
+        return self.memo[key]
+
+
+def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
+    """The first job and, for every other ``key=value`` at a position, the first job with that
+    value there (what :class:`SettingPlanner` composes); jobs of another length as they are."""
+    if not jobs:
+        return []
+    first = list(jobs[0])
+    out, seen = [first], set()
+    for job in jobs:
+        if len(job) != len(first):
+            out.append(list(job))
+            continue
+        for position, item in enumerate(job):
+            if item != first[position] and (position, item) not in seen:
+                seen.add((position, item))
+                out.append([*first[:position], item, *first[position + 1 :]])
+    return out
+
+
+class SettingPlanner:
+    """The :func:`setting_config` of every job of a sweep, from Hydra's composition of a
+    template job and of one variant per distinct ``key=value`` (:func:`variant_jobs`): a
+    job's setting is the template's with the top-level entries its values change replaced.
+    An override that changes more than its own entry, or two that change one entry, go
+    through Hydra's full composition."""
+
+    def __init__(self, composer: Compositions) -> None:
+        self.composer = composer
+        self.template: list[str] | None = None
+        self.base: dict[str, Any] = {}
+        self.parts: dict[tuple[int, str], dict[str, Any] | None] = {}
+
+    def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
+        """The setting of the job with these overrides."""
+        overrides = list(overrides)
+        if self.template is None:
+            self.template = overrides
+            self.base = setting_config(self.composer.full(overrides))
+        if len(overrides) != len(self.template):
+            return setting_config(self.composer.full(overrides))
+        setting = dict(self.base)
+        touched: set[str] = set()
+        for position, item in enumerate(overrides):
+            if item == self.template[position]:
+                continue
+            part = self._part(position, item)
+            if part is None or touched & part.keys():
+                return setting_config(self.composer.full(overrides))
+            touched |= part.keys()
+            setting.update(part)
+        return setting
+
+    def _part(self, position: int, item: str) -> dict[str, Any] | None:
+        """The setting entries a template variant with ``item`` at ``position`` changes, or
+        None when that variant changes more than the override's own key."""
+        memo = (position, item)
+        if memo not in self.parts:
+            self.parts[memo] = None
+            variant = list(self.template or [])
+            variant[position] = item
+            key = item.split("=", 1)[0].lstrip("+~").split("@")[0].replace("/", ".")
+            changed = setting_config(self.composer.full(variant))
+            diff = {k: v for k, v in changed.items() if self.base.get(k) != v}
+            if set(diff) <= {key.split(".")[0]} and changed.keys() == self.base.keys():
+                self.parts[memo] = diff
+        return self.parts[memo]
+
+
+@dataclass
+class Plan:
+    """What the sweeper launches and what it did not have to."""
+
+    jobs: list[list[str]] = field(default_factory=list)
+    settings: int = 0  # distinct settings of the sweep
+    complete: int = 0  # complete before launch (not launched)
+    invalid: int = 0  # invalid detector x descriptor pair: recorded as skipped here
+    to_compute: int = 0  # settings in the launched jobs
+    batches: int = 0  # launched jobs of more than one setting
+
+    def summary(self) -> str:
+        """The plan in one line."""
+        return (
+            f"sweep plan: {self.settings} settings: {self.complete} already complete (not "
+            f"launched), {self.invalid} skipped as invalid detector x descriptor pairs, "
+            f"{self.to_compute} to compute in {len(self.jobs)} jobs ({self.batches} batches)"
+        )
+
+
+def batch_key(setting: dict[str, Any]) -> str:
+    """What the settings of one batch have in common (all but :data:`BATCH_FREE_AXES`)."""
+    common = {k: v for k, v in setting.items() if k not in BATCH_FREE_AXES}
+    return json.dumps(common, sort_keys=True, default=str)
+
+
+def plan_path(sweep_dir: Path, batch_id: str) -> Path:
+    """The plan file of a batch."""
+    return Path(sweep_dir) / PLAN_DIR / f"{batch_id}.json"
+
+
+def read_plan(sweep_dir: Path, batch_id: str) -> dict[str, Any]:
+    """A batch's plan: ``{"batch_id", "members": [{"run_id", "overrides", "setting"}]}``."""
+    return json.loads(plan_path(sweep_dir, batch_id).read_text())
+
+
+def make_plan(
+    jobs: Sequence[Sequence[str]],
+    planner: SettingPlanner,
+    config: DictConfig,
+    sweep_dir: Path,
+    max_batch: int = MAX_BATCH,
+) -> Plan:
+    """Plan the jobs of a sweep (see the module docstring; ``max_batch=1``: one setting per
+    job); writes the skipped records of invalid pairs, their progress markers and the
+    batches' plan files."""
+    plan = Plan()
+    members: dict[str, dict[str, Any]] = {}
+    for overrides in jobs:
+        setting = planner.setting(overrides)
+        rid = setting_hash(setting)
+        members.setdefault(rid, {"run_id": rid, "overrides": list(overrides), "setting": setting})
+    plan.settings = len(members)
+    checks = store.Checks()
+    todo = []
+    for member in members.values():
+        if (
+            not config.force
+            and store.incomplete_reason(sweep_dir, member["run_id"], checks) is None
+        ):
+            plan.complete += 1
+        else:
+            todo.append(member)
+    if plan.complete:
+        store.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * plan.complete)
+    todo = _drop_invalid(todo, sweep_dir, config, plan)
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for member in todo:
+        groups.setdefault(batch_key(member["setting"]), []).append(member)
+    for group in groups.values():
+        for start in range(0, len(group), max_batch):
+            plan.jobs.append(_job(group[start : start + max_batch], sweep_dir, plan))
+    plan.to_compute = len(todo)
+    return plan
+
+
+def _job(batch: list[dict[str, Any]], sweep_dir: Path, plan: Plan) -> list[str]:
+    """The overrides of the job computing ``batch`` (writes its plan file when > 1)."""
+    if len(batch) == 1:
+        return list(batch[0]["overrides"])
+    ids = sorted(m["run_id"] for m in batch)
+    batch_id = "batch-" + hashlib.sha256(" ".join(ids).encode()).hexdigest()[:16]
+    path = plan_path(sweep_dir, batch_id)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    store.write_json_atomic({"batch_id": batch_id, "members": batch}, path)
+    plan.batches += 1
+    return [*batch[0]["overrides"], f"batch={batch_id}"]
+
+
+def _drop_invalid(
+    todo: list[dict[str, Any]], sweep_dir: Path, config: DictConfig, plan: Plan
+) -> list[dict[str, Any]]:
+    """``todo`` without the settings of invalid detector × descriptor pairs, whose
+    ``skipped`` records this writes (each pair checked once)."""
+    verdicts: dict[tuple[str, str], str | None] = {}
+    keep, skipped = [], []
+    for member in todo:
+        pair = (member["setting"]["detector"]["name"], member["setting"]["descriptor"]["name"])
+        if pair not in verdicts:
+            try:
+                check_pair(*pair)
+                verdicts[pair] = None
+            except ValueError as exc:  # InvalidCombinationError
+                verdicts[pair] = str(exc)
+        if verdicts[pair] is None:
+            keep.append(member)
+            continue
+        record = record_head(member["setting"], Path(sweep_dir).name, bool(config.cache.enabled))
+        record.update(status="skipped", message=verdicts[pair], end=now(), wall_s=0.0,
+                      peak_rss_mb=peak_rss_mb(), n_rows=0, skipped_at="plan")  # fmt: skip
+        store.write_json_atomic(record, store.run_paths(sweep_dir, record["run_id"])[1])
+        skipped.append("skipped")
+    if skipped:
+        store.mark_progress(sweep_dir, "invalid-pairs", skipped)
+    plan.invalid = len(skipped)
+    return keep

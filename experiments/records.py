@@ -1,0 +1,66 @@
+"""Run records: what a record holds before a run (ids, setting, versions, machine) and what
+its outcome adds (status, message, times, memory, row statistics). Used for a setting run
+alone (:mod:`experiments.run`), for the settings of a batch (:mod:`experiments.batch`) and
+for invalid pairs recorded at planning time (:mod:`experiments.plan`)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import resource
+from typing import Any
+
+import pandas as pd
+
+from experiments.config import setting_hash
+from experiments.provenance import code_version, machine, package_versions
+from ttc.pipeline import AXES
+
+
+def now() -> str:
+    """UTC now, ISO 8601 with milliseconds."""
+    return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
+
+
+def record_head(setting: dict[str, Any], sweep_id: str, cache_enabled: bool) -> dict[str, Any]:
+    """The parts of a run record known before the run, from its :func:`setting_config`."""
+    dataset = setting["dataset"]
+    return {
+        "run_id": setting_hash(setting),
+        "sweep_id": sweep_id,
+        **{axis: str(setting[axis]["name"]) for axis in AXES},
+        "first_frame": int(dataset["first"]),
+        "last_frame": int(dataset["last"]),
+        "step": int(dataset["step"]),
+        "config": json.dumps(setting, sort_keys=True),
+        **code_version(),
+        **{f"version_{k}": v for k, v in package_versions().items()},
+        **machine(),
+        "cache_enabled": bool(cache_enabled),
+        "start": now(),
+    }
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def with_run_columns(rows: pd.DataFrame, record: dict[str, Any]) -> pd.DataFrame:
+    """Prefix the rows with the run id, sweep id, axis values and code version."""
+    front = {k: record[k] for k in ("run_id", "sweep_id", *AXES)}
+    front["git_commit"] = record["git_commit"]
+    return pd.concat([pd.DataFrame(front, index=rows.index), rows], axis=1)
+
+
+def row_statistics(record: dict[str, Any], rows: pd.DataFrame) -> None:
+    """Add what the rows of an ok run say to its record: stages computed (not from the
+    cache), frame pairs with ``frame_error`` (count, and the first three in the message)."""
+    cached = rows[[c for c in rows if c.startswith("cached_")]].to_numpy()
+    record["stages_computed"] = int((~cached).sum())
+    errors = rows.loc[rows["error"] != "", ["frame", "error"]].drop_duplicates("frame")
+    record["n_frame_errors"] = len(errors)
+    if len(errors):
+        record["message"] = f"{len(errors)} frame pair(s) with frame_error: " + "; ".join(
+            f"frame {f}: {e}" for f, e in errors.head(3).itertuples(index=False)
+        )
