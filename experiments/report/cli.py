@@ -15,6 +15,7 @@ import matplotlib
 from experiments import store
 from experiments.report import fp5, fp6
 from experiments.report import reference as reference_writer
+from experiments.report.html import html_report
 from experiments.report.load import SweepData, load_sweeps, make_context, reference_for
 from ttc import evaluation as ev
 
@@ -40,9 +41,10 @@ def build_report(
     cache_dir: Path | None = None,
     pictures: bool = True,
     log: Callable[[str], None] = print,
+    html: bool = True,
 ) -> dict[str, Any]:
-    """Metrics beside each sweep and both reports under ``out``; returns what was written and
-    the seconds each step took."""
+    """Metrics beside each sweep and both reports under ``out`` (with ``html``, the HTML
+    report in ``out/html`` too); returns what was written and the seconds each step took."""
     times: dict[str, float] = {}
     start = last = time.perf_counter()
 
@@ -68,11 +70,15 @@ def build_report(
     lap("fp5")
     fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
     lap("fp6")
+    index = html_report(data, reference, fp5_table, fp6_tables, out) if html else None
+    lap("html")
     times["total"] = time.perf_counter() - start
     summary = {"metrics": written, "out": out, "times": times, "pair_details": ctx.calls,
-               "fp5": fp5_table, "fp6": fp6_tables}  # fmt: skip
+               "fp5": fp5_table, "fp6": fp6_tables, "html": index}  # fmt: skip
     log(f"metrics: {', '.join(map(str, written))}")
     log(f"reports: {out} ({', '.join(sorted(p.name for p in out.glob('*.md')))})")
+    if index is not None:
+        log(f"HTML report: {index}")
     log("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in times.items())
         + f"; {ctx.calls} pair details")  # fmt: skip
     return summary
@@ -83,7 +89,7 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m experiments.report",
         description="The FP.5 (lidar) and FP.6 (camera) reports of one or more sweeps: "
-        "markdown + CSV + PNG.",
+        "markdown + CSV + pictures, and an HTML report (out/html/index.html).",
     )
     p.add_argument("sweep_dirs", type=Path, nargs="+", help="sweep folders")
     p.add_argument("--out", type=Path, required=True, help="report folder (results/<name>)")
@@ -92,6 +98,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--cache-dir", type=Path, default=None,
                    help="stage cache (default: $TTC_CACHE_DIR or the configured one)")  # fmt: skip
     p.add_argument("--no-pictures", action="store_true", help="tables and plots only")
+    p.add_argument("--no-html", action="store_true", help="no HTML report (out/html)")
     return p
 
 
@@ -104,6 +111,7 @@ def main(argv: list[str] | None = None) -> None:
         if not d.is_dir():
             p.error(f"{d} is not a folder")
     try:
-        build_report(args.sweep_dirs, args.out, args.data_dir, args.cache_dir, not args.no_pictures)
+        build_report(args.sweep_dirs, args.out, args.data_dir, args.cache_dir,
+                     not args.no_pictures, html=not args.no_html)  # fmt: skip
     except store.StoreError as exc:  # a corrupt or inconsistent results file, named
         sys.exit(f"report not written: {exc}")

@@ -24,6 +24,11 @@ FP5_COLUMNS = [
 ]  # fmt: skip
 
 
+def picture_stem(dataset: str, frame: int) -> str:
+    """The file name (without extension) of the top view of a flagged frame."""
+    return f"{dataset}_frame_{int(frame):04d}"
+
+
 def other_object_texts(t: pd.DataFrame, runs: pd.DataFrame, ctx: Context) -> pd.Series:
     """The ``other_object`` reason (:func:`ttc.evaluation.other_object_text`) of the flagged
     rows of the FP.5 table ``t``, measured on the lead box's points of one recomputed pair
@@ -61,7 +66,7 @@ def fp5_report(
     drawn = []
     if pictures:
         for r in ev.most_flagged_frames(t, MAX_LIDAR_PICTURES).itertuples():
-            path = out / "fp5_pictures" / f"{r.dataset}_frame_{r.frame:04d}.png"
+            path = out / "fp5_pictures" / f"{picture_stem(r.dataset, r.frame)}.png"
             image = lidar_picture(t, data.runs, ctx, r.dataset, r.frame, reference)
             drawn.append(save_top_view(image, path))
     write_text(fp5_markdown(data, t, reference, drawn, out), out / "fp5_lidar.md")

@@ -48,6 +48,11 @@ FP6_COLUMNS = [
 ]  # fmt: skip
 
 
+def picture_stem(setting: str, frame: int) -> str:
+    """The file name (without extension) of the match picture of a setting's frame."""
+    return f"{setting.replace('/', '_')}_frame_{int(frame):04d}"
+
+
 def examine_worst(
     t: pd.DataFrame, runs: pd.DataFrame, reference: pd.DataFrame, ctx: Context, limit: int
 ) -> pd.DataFrame:
@@ -103,7 +108,7 @@ def fp6_report(
     if pictures:
         worst = ev.worst_order(t, per_pair=1, turns="detector").head(MAX_CAMERA_PICTURES)
         for _, row in worst.iterrows():
-            name = f"{row['setting'].replace('/', '_')}_frame_{int(row['frame']):04d}.png"
+            name = picture_stem(row["setting"], row["frame"]) + ".png"
             image = camera_picture(row, data.runs, ctx)
             drawn.append((row, save_picture(image, out / "fp6_pictures" / name)))
     write_text(fp6_markdown(data, t, ranking, drawn, out), out / "fp6_camera.md")

@@ -1,0 +1,81 @@
+"""The HTML report: one self-contained folder (``<out>/html/``) with ``index.html`` that opens
+from disk with no server and no network.
+
+* ``index.html``: the camera ranking, sortable and filterable (DataTables, shipped by the
+  :mod:`itables` package and copied into ``assets/``), each setting linked to its page;
+* ``settings/<dataset>__<setting>.html``: the setting's TTC series against the reference (an
+  inline SVG), its metrics, its way-off frames with their reasons, numbers and pictures;
+* ``fp6.html``, ``fp5.html``, ``reference.html``: the FP.6 / FP.5 diagnoses and the reference;
+* ``pictures/fp6``, ``pictures/fp5``, ``img/``: the report's pictures and figures (the same
+  bytes as beside the markdown, so git stores each once).
+
+Pages are built by :mod:`.pages` from the tables the markdown writers made; :mod:`.page`
+holds the page skeleton and tables, :mod:`.svg` the series chart.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+
+from experiments.report.encode import write_text
+from experiments.report.html import pages
+from experiments.report.html.page import write_assets
+from experiments.report.load import SweepData
+from ttc.atomic import write_bytes_atomic
+
+#: Figures of the markdown report shown on the HTML pages (copied into ``img/``).
+FIGURES = ("reference.png", "fp5_lidar_ttc.png", "fp6_heatmap.png", "fp6_ttc_series.png",
+           "fp6_pareto.png", "fp6_rank_intervals.png")  # fmt: skip
+
+
+def _copy_files(sources: list[Path], folder: Path) -> dict[str, str]:
+    """Copy files into ``folder`` (atomically); their names by stem."""
+    for src in sources:
+        write_bytes_atomic(src.read_bytes(), folder / src.name)
+    return {src.stem: src.name for src in sources}
+
+
+def html_report(
+    data: SweepData,
+    reference: pd.DataFrame,
+    fp5_table: pd.DataFrame | None,
+    fp6_tables: tuple[pd.DataFrame, pd.DataFrame] | None,
+    out: Path,
+) -> Path:
+    """Write the HTML report of the tables the markdown writers returned into ``out/html``
+    (replacing an earlier one) and return its ``index.html``. The pictures and figures are
+    those the markdown writers put in ``out``."""
+    folder = out / "html"
+    shutil.rmtree(folder, ignore_errors=True)
+    write_assets(folder, write_text)
+    figures = {name: name for name in FIGURES if (out / name).is_file()}
+    _copy_files([out / name for name in figures], folder / "img")
+    fp6_pictures = _copy_files(sorted((out / "fp6_pictures").glob("*.*")), folder / "pictures/fp6")
+    fp5_pictures = _copy_files(sorted((out / "fp5_pictures").glob("*.*")), folder / "pictures/fp5")
+    t, ranking = fp6_tables if fp6_tables is not None else (None, None)
+    provenance = pages.provenance_block(data)
+    write_text(pages.index_page(provenance, ranking, figures), folder / "index.html")
+    write_text(pages.reference_page(provenance, reference, figures), folder / "reference.html")
+    if t is not None and ranking is not None and not ranking.empty:
+        write_text(pages.fp6_page(provenance, t, fp6_pictures, figures), folder / "fp6.html")
+        needed = ["dataset", "setting", "reason_text", *pages.FRAME_COLUMNS]
+        by_setting = dict(list(t[needed].groupby(["dataset", "setting"], sort=False)))
+        for _, row in ranking.iterrows():
+            rows = by_setting.get((row["dataset"], row["setting"]))
+            if rows is None:
+                continue
+            path = folder / pages.setting_href(row["dataset"], row["setting"])
+            write_text(pages.setting_page(row, rows, reference, fp6_pictures), path)
+    else:
+        write_text(pages.page("FP.6 camera", "<p>No camera setting ran.</p>", here="fp6.html"),
+                   folder / "fp6.html")  # fmt: skip
+    if fp5_table is not None:
+        write_text(pages.fp5_page(provenance, data, fp5_table, reference, fp5_pictures, figures),
+                   folder / "fp5.html")  # fmt: skip
+    else:
+        write_text(pages.page("FP.5 lidar", "<p>No lidar estimate ran.</p>", here="fp5.html"),
+                   folder / "fp5.html")  # fmt: skip
+    return folder / "index.html"

@@ -1,0 +1,110 @@
+"""Small inline SVG charts of the HTML report: one setting's TTC per frame against the
+reference (a few KB each, no image files, hover titles, way-off frames linked to their
+section of the page)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from experiments.report.html.page import esc
+
+WIDTH, HEIGHT = 720, 240
+LEFT, RIGHT, TOP, BOTTOM = 44, 12, 14, 30
+SERIES_COLOUR = "#1f77b4"
+REFERENCE_COLOUR = "#222"
+WAY_OFF_COLOUR = "#d62728"
+
+
+def _nice_step(span: float, ticks: int = 5) -> float:
+    """A round tick step (1, 2 or 5 times a power of ten) giving about ``ticks`` ticks."""
+    raw = max(span, 1e-9) / ticks
+    power = 10 ** math.floor(math.log10(raw))
+    return next(m * power for m in (1, 2, 5, 10) if m * power >= raw)
+
+
+def _axes(x0: float, x1: float, top: float) -> list[str]:
+    """Grid lines, tick labels and axis titles of a frame × seconds chart."""
+    out = []
+    for v in np.arange(0, top + 1e-9, _nice_step(top)):
+        y = _y(v, top)
+        out.append(f'<line x1="{LEFT}" y1="{y:.1f}" x2="{WIDTH - RIGHT}" y2="{y:.1f}" '
+                   f'stroke="#e3e3e3"/><text x="{LEFT - 4}" y="{y + 4:.1f}" '
+                   f'text-anchor="end">{v:g}</text>')  # fmt: skip
+    for f in np.arange(math.ceil(x0), x1 + 1e-9, max(1, _nice_step(x1 - x0, 10))):
+        x = _x(f, x0, x1)
+        out.append(f'<text x="{x:.1f}" y="{HEIGHT - BOTTOM + 14}" text-anchor="middle">'
+                   f"{f:g}</text>")  # fmt: skip
+    out.append(f'<text x="{(LEFT + WIDTH - RIGHT) / 2}" y="{HEIGHT - 3}" '
+               'text-anchor="middle">frame</text>')  # fmt: skip
+    out.append(f'<text x="10" y="{TOP + 2}" text-anchor="start">TTC (s)</text>')
+    return out
+
+
+def _x(frame: float, x0: float, x1: float) -> float:
+    return LEFT + (frame - x0) / max(x1 - x0, 1) * (WIDTH - LEFT - RIGHT)
+
+
+def _y(value: float, top: float) -> float:
+    return TOP + (1 - min(max(value, 0.0), top) / top) * (HEIGHT - TOP - BOTTOM)
+
+
+def _polylines(points: list[tuple[float, float] | None], colour: str, dash: str = "") -> str:
+    """Polylines through consecutive points, broken where a point is None (invalid TTC)."""
+    runs, current = [], []
+    for p in [*points, None]:
+        if p is None:
+            if len(current) > 1:
+                runs.append(current)
+            current = []
+        else:
+            current.append(p)
+    style = f' stroke-dasharray="{dash}"' if dash else ""
+    return "".join(
+        f'<polyline fill="none" stroke="{colour}" stroke-width="1.6"{style} points="'
+        + " ".join(f"{x:.1f},{y:.1f}" for x, y in run) + '"/>'
+        for run in runs
+    )  # fmt: skip
+
+
+def ttc_series_svg(rows: pd.DataFrame, reference: pd.DataFrame) -> str:
+    """One setting's camera TTC per frame (``rows``: frame, ttc_camera, ttc_ref_s, way_off,
+    reasons) against the reference TTC, as an inline SVG. Values above the top are drawn on
+    the top edge; invalid TTCs (NaN, inf) as open triangles on the top edge; way-off frames
+    red and linked to ``#f<frame>``."""
+    rows = rows[["frame", "ttc_camera", "ttc_ref_s", "way_off", "reasons"]].sort_values("frame")
+    ref = reference[reference["frame"].isin(rows["frame"])].sort_values("frame")
+    finite_ref = ref["ttc_ref_s"][np.isfinite(ref["ttc_ref_s"])]
+    top = 1.5 * float(finite_ref.max()) if len(finite_ref) else 60.0
+    top = float(_nice_step(top) * math.ceil(top / _nice_step(top)))
+    x0, x1 = float(rows["frame"].min()), float(rows["frame"].max())
+
+    def point(frame: float, value: float) -> tuple[float, float] | None:
+        return (_x(frame, x0, x1), _y(value, top)) if np.isfinite(value) and value > 0 else None
+
+    parts = _axes(x0, x1, top)
+    parts.append(_polylines([point(f, v) for f, v in zip(ref["frame"], ref["ttc_ref_s"],
+                                                          strict=True)], REFERENCE_COLOUR, "5 3"))  # fmt: skip
+    parts.append(_polylines([point(f, v) for f, v in zip(rows["frame"], rows["ttc_camera"],
+                                                          strict=True)], SERIES_COLOUR))  # fmt: skip
+    for r in rows.itertuples():
+        valid = np.isfinite(r.ttc_camera) and r.ttc_camera > 0
+        x, y = _x(r.frame, x0, x1), _y(r.ttc_camera if valid else top, top)
+        colour = WAY_OFF_COLOUR if r.way_off else SERIES_COLOUR
+        title = (f"frame {r.frame}: camera {r.ttc_camera:.2f} s, reference {r.ttc_ref_s:.2f} s"
+                 + (f"; way off: {r.reasons}" if r.way_off else ""))  # fmt: skip
+        mark = (f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{4 if r.way_off else 2.5}" fill="{colour}">'
+                if valid else
+                f'<path d="M{x - 5:.1f},{y + 8:.1f}h10l-5,-9z" fill="none" stroke="{colour}">')  # fmt: skip
+        end = "</circle>" if valid else "</path>"
+        mark += f"<title>{esc(title)}</title>{end}"
+        parts.append(f'<a href="#f{r.frame}">{mark}</a>' if r.way_off else mark)
+    legend = (f'<text x="{WIDTH - RIGHT}" y="{TOP + 2}" text-anchor="end">'
+              f'<tspan fill="{SERIES_COLOUR}">— camera TTC</tspan>  '
+              f'<tspan fill="{REFERENCE_COLOUR}">- - reference</tspan>  '
+              f'<tspan fill="{WAY_OFF_COLOUR}">● way off (click)</tspan>  △ invalid</text>')  # fmt: skip
+    return (f'<svg class="series" xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" '
+            f'height="{HEIGHT}" viewBox="0 0 {WIDTH} {HEIGHT}" font-size="11" '
+            f'font-family="sans-serif">{"".join(parts)}{legend}</svg>')  # fmt: skip
