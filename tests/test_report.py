@@ -16,8 +16,12 @@ import pytest
 
 from experiments import store
 from experiments.report import encode
+from experiments.report.load import load_sweeps, make_context
 from experiments.report.pictures import MAX_CAMERA_PICTURES, MAX_LIDAR_PICTURES
 from tests.conftest import PROJECT_ROOT
+from ttc import evaluation as ev
+from ttc.draw import HIGHLIGHT_COLOUR
+from ttc.draw.lead_pair import GAP, crop_scale, lead_region
 
 COMMITTED_FP5 = "results/kitti_0_18/fp5_lidar_ttc.csv"
 #: Columns of the FP.5 CSV that a fresh sweep must reproduce exactly.
@@ -185,13 +189,61 @@ def test_fp6_report_on_a_camera_grid(grid_report: Path, camera_grid) -> None:
     assert frames.loc[~frames["way_off"], "reasons"].isna().all()
     for name in ("fp6_heatmap.png", "fp6_ttc_series.png", "fp6_pareto.png", "reference.png"):
         assert 5_000 < (grid_report / name).stat().st_size <= encode.MAX_PICTURE_BYTES
-    pictures = list((grid_report / "fp6_pictures").glob("*.png"))
+    pictures = list((grid_report / "fp6_pictures").glob("*.webp"))
     assert len(pictures) == min(len(way.groupby(["detector", "descriptor"])), MAX_CAMERA_PICTURES)
-    assert all(p.stat().st_size <= encode.MAX_PICTURE_BYTES for p in pictures)
+    assert all(p.stat().st_size <= 200_000 for p in pictures)
     # one lidar estimator in the sweep still gives its FP.5 section
     lidar = pd.read_csv(grid_report / "fp5_lidar_ttc.csv")
     assert set(lidar["lidar_ttc"]) == {"median"} and len(lidar) == 5
     assert "| kitti_0_18 | median |" in (grid_report / "fp5_lidar.md").read_text()
+
+
+def test_crop_scale_reaches_the_width_without_shrinking() -> None:
+    for width in (40, 120, 300, 450, 900, 1242):
+        scale = crop_scale(width, 900)
+        assert scale >= 1.0
+        assert 2 * width * scale + GAP >= 900 or scale == 4.0
+
+
+def _edges(mask: np.ndarray, length: float) -> np.ndarray:
+    """Indices of the rows of ``mask`` with at least 80 % of ``length`` pixels set."""
+    return np.flatnonzero(mask.sum(axis=1) >= 0.8 * length)
+
+
+@pytest.mark.slow
+def test_fp6_pictures_are_readable_and_show_both_lead_boxes(grid_report: Path, camera_grid) -> None:
+    """Every FP.6 picture is at least 800 px wide and shows the lead box of the previous
+    frame (left) and of the current frame (right) at the picture's scale: a yellow outline
+    of the box's size (within 4 px) in each half."""
+    root, sweep = camera_grid
+    pictures = sorted((grid_report / "fp6_pictures").glob("*.webp"))
+    assert len(pictures) >= 1
+    ranking = pd.read_csv(grid_report / "fp6_ranking.csv")
+    frames = pd.read_csv(grid_report / "fp6_camera_ttc.csv")
+    run_of = dict(zip(ranking["setting"].str.replace("/", "_"), ranking["run_id"], strict=True))
+    data, ctx = load_sweeps([sweep]), make_context(None, root / "cache")
+    for path in pictures:
+        image = cv2.imread(str(path))
+        assert image is not None and image.shape[1] >= 800, path.name
+        stem, frame = path.stem.rsplit("_frame_", 1)
+        row = frames[(frames["setting"].str.replace("/", "_") == stem)
+                     & (frames["frame"] == int(frame))].iloc[0]  # fmt: skip
+        detail = ctx.detail(data.runs, run_of[stem], int(row["prev_frame"]), int(row["frame"]))
+        x0, _, x1, _ = lead_region(detail)
+        scale = crop_scale(x1 - x0)
+        half = int(round((x1 - x0) * scale))
+        yellow = (np.abs(image.astype(int) - HIGHLIGHT_COLOUR) < 70).all(axis=2)
+        yellow[-40:] = False  # the legend's sample box
+        for (frame_no, box), part in zip(
+            zip((detail.prev, detail.curr), ev.lead_boxes(detail), strict=True),
+            (yellow[:, :half], yellow[:, half + GAP :]), strict=True,
+        ):  # fmt: skip
+            assert box >= 0, f"{path.name}: no lead box in frame {frame_no}"
+            w, h = (float(v) * scale for v in detail.objects[frame_no]["roi"][box][2:])
+            rows, columns = _edges(part, w), _edges(part.T, h)
+            assert len(rows) >= 2 and len(columns) >= 2, f"{path.name}: frame {frame_no}"
+            assert abs(rows[-1] - rows[0] - h) <= 4, (path.name, frame_no, rows, h)
+            assert abs(columns[-1] - columns[0] - w) <= 4, (path.name, frame_no, columns, w)
 
 
 @pytest.mark.slow

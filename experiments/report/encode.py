@@ -1,5 +1,6 @@
-"""Encoding and writing report files: markdown tables, deterministic CSVs, PNG pictures within
-a byte budget. Every file is written atomically (:mod:`ttc.atomic`)."""
+"""Encoding and writing report files: markdown tables, deterministic CSVs, PNG drawings within
+a byte budget, full-size WebP photographs. Every file is written atomically
+(:mod:`ttc.atomic`)."""
 
 from __future__ import annotations
 
@@ -16,11 +17,13 @@ from PIL import Image
 from ttc.atomic import atomic_write, write_bytes_atomic
 
 FLOAT_FORMAT = "%.6g"
-MAX_PICTURE_WIDTH = 640
 #: Largest PNG (bytes): pictures are downscaled until they fit.
 MAX_PICTURE_BYTES = 120_000
 #: Largest FP.5 top view (bytes): there is one per flagged frame.
 LIDAR_PICTURE_BYTES = 60_000
+#: WebP quality of an FP.6 match picture: photographs with text, 6-8x smaller than PNG at
+#: full size, text and keypoint marks still sharp.
+WEBP_QUALITY = 80
 #: Colours of an FP.5 top view's palette PNG (lines and dots on white: 4x smaller than RGB).
 TOP_VIEW_COLOURS = 32
 
@@ -65,14 +68,6 @@ def write_csv(df: pd.DataFrame, path: Path) -> Path:
 # --------------------------------------------------------------------------- pictures
 
 
-def fit_width(image: np.ndarray, width: int = MAX_PICTURE_WIDTH) -> np.ndarray:
-    """``image`` downscaled (area interpolation) to at most ``width`` pixels wide."""
-    if image.shape[1] <= width:
-        return image
-    scale = width / image.shape[1]
-    return cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-
-
 def rgb_png(image: np.ndarray) -> bytes:
     """A BGR image (H × W × 3 or H × W uint8) encoded as a PNG (OpenCV's default
     compression)."""
@@ -108,14 +103,17 @@ def within_budget(image: np.ndarray, max_bytes: int = MAX_PICTURE_BYTES) -> np.n
     return shrink_to_fit(image, rgb_png, max_bytes)[0]
 
 
-def save_picture(image: np.ndarray, path: Path) -> Path:
-    """Write a picture (at most :data:`MAX_PICTURE_WIDTH` wide, within the byte budget)."""
-    return write_bytes_atomic(shrink_to_fit(fit_width(image), rgb_png, MAX_PICTURE_BYTES)[1], path)
-
-
 def save_top_view(image: np.ndarray, path: Path, max_bytes: int = LIDAR_PICTURE_BYTES) -> Path:
     """Write a drawing as a palette PNG (atomically), downscaled until it fits ``max_bytes``."""
     return write_bytes_atomic(shrink_to_fit(image, palette_png, max_bytes)[1], path)
+
+
+def save_webp(image: np.ndarray, path: Path, quality: int = WEBP_QUALITY) -> Path:
+    """Write ``image`` (BGR) full size as a lossy WebP of ``quality`` (atomically)."""
+    ok, buffer = cv2.imencode(".webp", image, [cv2.IMWRITE_WEBP_QUALITY, quality])
+    if not ok:
+        raise OSError(f"{path}: OpenCV could not encode the picture as WebP")
+    return write_bytes_atomic(buffer.tobytes(), path)
 
 
 def save_png(image: np.ndarray, path: Path | str) -> Path:

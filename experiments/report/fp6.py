@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.report.encode import markdown_table, save_picture, write_csv, write_text
+from experiments.report.encode import markdown_table, save_webp, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData
 from experiments.report.pictures import MAX_CAMERA_PICTURES, camera_picture
@@ -108,9 +108,9 @@ def fp6_report(
     if pictures:
         worst = ev.worst_order(t, per_pair=1, turns="detector").head(MAX_CAMERA_PICTURES)
         for _, row in worst.iterrows():
-            name = picture_stem(row["setting"], row["frame"]) + ".png"
+            name = picture_stem(row["setting"], row["frame"]) + ".webp"
             image = camera_picture(row, data.runs, ctx)
-            drawn.append((row, save_picture(image, out / "fp6_pictures" / name)))
+            drawn.append((row, save_webp(image, out / "fp6_pictures" / name)))
     write_text(fp6_markdown(data, t, ranking, drawn, out), out / "fp6_camera.md")
     return t, ranking
 

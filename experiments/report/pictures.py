@@ -14,7 +14,11 @@ from ttc import evaluation as ev
 
 #: One top view per flagged frame, up to this many (the most flagged estimators first).
 MAX_LIDAR_PICTURES = 50
-MAX_CAMERA_PICTURES = 10
+#: FP.6 match pictures per report (full size, ~70-100 kB each as WebP: 12 take about the
+#: bytes the 10 shrunk PNGs of earlier reports took).
+MAX_CAMERA_PICTURES = 12
+#: Camera frames per second (KITTI raw: 10 Hz), for the ratio the reference implies.
+FRAME_RATE_HZ = 10.0
 #: Depth (m) shown by an FP.5 top view, from just in front of the nearest point.
 TOP_VIEW_SPAN_M = 1.5
 #: Width and height (pixels) of one panel of an FP.5 top view.
@@ -75,34 +79,34 @@ def lidar_picture(
     return np.hstack([panels[0], seam, panels[1]])
 
 
-def _crop_around_boxes(image: np.ndarray, rois: list[np.ndarray], h: int) -> np.ndarray:
-    """The stacked (previous above current, each ``h`` rows) matches picture cropped around
-    the boxes ``rois`` (x, y, w, h pixels): at least 560 px wide, 40 px above, 20 below."""
-    x0, x1 = (min(r[0] for r in rois), max(r[0] + r[2] for r in rois)) if rois else (0, 1)
-    y0, y1 = (min(r[1] for r in rois), max(r[1] + r[3] for r in rois)) if rois else (0, h)
-    width = image.shape[1]
-    cx, half = (x0 + x1) // 2, max(280, (x1 - x0) // 2 + 80)
-    left, right = max(0, cx - half), min(width, cx + half)
-    top, bottom = max(0, y0 - 40), min(h, y1 + 20)
-    return np.vstack([image[top:bottom, left:right], image[h + top : h + bottom, left:right]])
+def camera_lines(t_row: pd.Series) -> list[str]:
+    """The numbers that explain a way-off row of the FP.6 table, as text lines: setting and
+    frames, camera against reference TTC, the distance ratio against the one the reference
+    implies, the match counts, the reasons and their text."""
+    prev, frame = int(t_row["prev_frame"]), int(t_row["frame"])
+    ref = float(t_row["ttc_ref_s"])
+    implied = 1.0 + (frame - prev) / FRAME_RATE_HZ / ref if np.isfinite(ref) and ref else 1.0
+    in_box = int(t_row["matches_in_box"])
+    removed = int(t_row["matches_removed"])
+    share = f" ({removed / in_box:.0%})" if in_box else ""
+    ttc = draw.format_ttc(float(t_row["ttc_camera"]), str(t_row["camera_reason"]))
+    return [
+        f"{t_row['setting']}    frame {prev} -> {frame}    ({t_row['dataset']})",
+        f"camera TTC {ttc}, reference {ref:.2f} s, relative error "
+        + (f"{rel:.2f}" if np.isfinite(rel := float(t_row["camera_rel_err"])) else "n/a"),
+        f"median distance ratio r = {t_row['camera_ratio']:.4f}; the reference implies "
+        f"{implied:.4f} ({t_row['camera_pairs']} keypoint pairs)",
+        f"{in_box} matches in the lead box: {int(t_row['matches_kept'])} kept, {removed} removed"
+        f"{share}; {int(t_row['keypoints_curr'])} keypoints, {int(t_row['matches_total'])} "
+        "matches in the frame",
+        f"way off: {t_row['reasons']}",
+        str(t_row["reason_text"]),
+    ]
 
 
 def camera_picture(t_row: pd.Series, runs: pd.DataFrame, ctx: Context) -> np.ndarray:
-    """The lead box's matches (previous above current) of a row of the FP.6 table, cropped
-    around the box, with the setting, TTCs and reasons in a text band on top (BGR)."""
+    """The lead box region of both frames of a way-off row of the FP.6 table, side by side
+    and enlarged to at least :data:`ttc.draw.lead_pair.MIN_WIDTH` pixels, with its kept and
+    removed matches and the numbers of :func:`camera_lines` (BGR)."""
     detail = ctx.detail(runs, t_row["run_id"], int(t_row["prev_frame"]), int(t_row["frame"]))
-    image = draw.draw_keypoint_matches(detail, max_draw=150)
-    prev_box, curr_box = ev.lead_boxes(detail)
-    rois = [detail.objects[detail.curr]["roi"][curr_box]] if curr_box >= 0 else []
-    if prev_box >= 0:
-        rois.append(detail.objects[detail.prev]["roi"][prev_box])
-    crop = _crop_around_boxes(image, rois, detail.images[detail.prev].shape[0])
-    ttc = draw.format_ttc(float(t_row["ttc_camera"]), str(t_row["camera_reason"]))
-    lines = [
-        f"{t_row['setting']}  frame {int(t_row['prev_frame'])} -> {int(t_row['frame'])}",
-        f"TTC camera {ttc}, reference {t_row['ttc_ref_s']:.2f} s, ratio "
-        f"{t_row['camera_ratio']:.4f}",
-        f"{int(t_row['matches_kept'])} kept (green) / {int(t_row['matches_removed'])} removed"
-        f" (red) of {int(t_row['matches_in_box'])} in the box; reasons: {t_row['reasons']}",
-    ]
-    return np.vstack([draw.text_band(lines, crop.shape[1]), crop])
+    return draw.lead_match_picture(detail, camera_lines(t_row))

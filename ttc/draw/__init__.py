@@ -1,6 +1,7 @@
 """Pictures of the pipeline, by what they show: raster primitives (:mod:`~ttc.draw.raster`),
 overlays on a camera image (:mod:`~ttc.draw.overlays`), the bird's-eye view
-(:mod:`~ttc.draw.top_view`) and a frame pair's matches (:mod:`~ttc.draw.matches`).
+(:mod:`~ttc.draw.top_view`) a frame pair's matches (:mod:`~ttc.draw.matches`) and the readable lead-box picture of a
+way-off frame (:mod:`~ttc.draw.lead_pair`).
 
 Arrays in, a new BGR uint8 image out; nothing is estimated here (the marks of a top view and
 the lead box are given) and nothing is written (the writers in :mod:`experiments.report` and
@@ -8,6 +9,7 @@ the lead box are given) and nothing is written (the writers in :mod:`experiments
 (``from ttc import draw; draw.top_view(...)``).
 """
 
+from ttc.draw.lead_pair import lead_match_picture
 from ttc.draw.matches import draw_box_matches, draw_keypoint_matches
 from ttc.draw.overlays import (
     box_labels,
@@ -55,6 +57,7 @@ __all__ = [
     "draw_lead_ttc",
     "draw_lidar_on_image",
     "format_ttc",
+    "lead_match_picture",
     "palette_colour",
     "put_lines",
     "put_text",
