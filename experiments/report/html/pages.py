@@ -160,7 +160,7 @@ def fp6_page(
 def _frame_section(row: dict, picture: str | None) -> str:
     """One way-off frame of a setting's page: its reasons, the numbers and its picture."""
     numbers = (f"camera TTC {fmt(row['ttc_camera'])} s ({esc(row['camera_reason'])}), reference "
-               f"{fmt(row['ttc_ref_s'])} s, relative error {fmt(row['camera_rel_err'])}; "
+               f"{fmt(row['ttc_ref_s'])} s, relative error {fmt(row['camera_rel_err']) or 'n/a'}; "
                f"median distance ratio {fmt(row['camera_ratio'], 5)}; "
                f"{fmt(row['matches_in_box'])} matches in the box, {fmt(row['matches_kept'])} "
                f"kept, {fmt(row['matches_removed'])} removed")  # fmt: skip
@@ -180,10 +180,11 @@ def setting_page(
     way-off frames with reasons, numbers and pictures, and every frame's row."""
     dataset, setting = rank_row["dataset"], rank_row["setting"]
     rows = rows.sort_values("frame")
-    metrics = pd.DataFrame({
-        "metric": [m for m in SETTING_METRICS if m in rank_row],
-        "value": [fmt(rank_row[m]) for m in SETTING_METRICS if m in rank_row],
-    })  # fmt: skip
+    names = [m for m in SETTING_METRICS if m in rank_row]
+    metrics = "".join(
+        static_table(pd.DataFrame([[fmt(rank_row[m]) for m in chunk]], columns=chunk))
+        for chunk in (names[i : i + 6] for i in range(0, len(names), 6))
+    )
     axes = ", ".join(f"{a}: <code>{esc(rank_row[a])}</code>" for a in ev.CAMERA_AXES[:-1]
                      if a in rank_row)  # fmt: skip
     way = rows[rows["way_off"]]
@@ -198,7 +199,7 @@ def setting_page(
         "<h2>TTC per frame against the reference</h2>",
         ttc_series_svg(rows, reference),
         "<h2>Metrics</h2>",
-        static_table(metrics),
+        metrics,
         f'<h2 id="way-off">Way-off frames ({len(way)} of {len(rows)})</h2>',
         *(sections or ["<p>none</p>"]),
         "<h2>Every frame</h2>",

@@ -12,7 +12,7 @@ import pandas as pd
 from experiments.report.html.page import esc
 
 WIDTH, HEIGHT = 720, 240
-LEFT, RIGHT, TOP, BOTTOM = 44, 12, 14, 30
+LEFT, RIGHT, TOP, BOTTOM = 44, 12, 30, 30
 SERIES_COLOUR = "#1f77b4"
 REFERENCE_COLOUR = "#222"
 WAY_OFF_COLOUR = "#d62728"
@@ -39,7 +39,9 @@ def _axes(x0: float, x1: float, top: float) -> list[str]:
                    f"{f:g}</text>")  # fmt: skip
     out.append(f'<text x="{(LEFT + WIDTH - RIGHT) / 2}" y="{HEIGHT - 3}" '
                'text-anchor="middle">frame</text>')  # fmt: skip
-    out.append(f'<text x="10" y="{TOP + 2}" text-anchor="start">TTC (s)</text>')
+    middle = (TOP + HEIGHT - BOTTOM) / 2
+    out.append(f'<text transform="rotate(-90)" x="{-middle}" y="11" text-anchor="middle">'
+               "TTC (s)</text>")  # fmt: skip
     return out
 
 
@@ -101,7 +103,7 @@ def ttc_series_svg(rows: pd.DataFrame, reference: pd.DataFrame) -> str:
         end = "</circle>" if valid else "</path>"
         mark += f"<title>{esc(title)}</title>{end}"
         parts.append(f'<a href="#f{r.frame}">{mark}</a>' if r.way_off else mark)
-    legend = (f'<text x="{WIDTH - RIGHT}" y="{TOP + 2}" text-anchor="end">'
+    legend = (f'<text x="{WIDTH - RIGHT}" y="12" text-anchor="end">'
               f'<tspan fill="{SERIES_COLOUR}">— camera TTC</tspan>  '
               f'<tspan fill="{REFERENCE_COLOUR}">- - reference</tspan>  '
               f'<tspan fill="{WAY_OFF_COLOUR}">● way off (click)</tspan>  △ invalid</text>')  # fmt: skip
