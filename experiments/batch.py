@@ -11,6 +11,8 @@ that each of their records names (``rows_file``); the merged dataset is the same
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import time
 import traceback
 from pathlib import Path
@@ -27,7 +29,7 @@ from experiments.records import now, peak_rss_mb, record_head, row_statistics
 from ttc.batch import MEMBER, run_settings
 from ttc.cache import StageCache
 from ttc.descriptors import InvalidCombinationError
-from ttc.pipeline import AXES, input_files
+from ttc.pipeline import AXES, Settings, input_files
 
 
 def run_batch(cfg: DictConfig, sweep_dir: Path) -> list[dict[str, Any]]:
@@ -64,12 +66,18 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
     records = [record_head(m["setting"], sweep_dir.name, bool(cfg.cache.enabled)) for m in todo]
     errors: dict[int, BaseException] = {}
     settings = []
+    maker = SettingsMaker(todo[0]["setting"])
     for i, member in enumerate(todo):
         try:
-            settings.append(settings_from_config(OmegaConf.create(member["setting"])))
+            settings.append(maker.make(member["setting"]))
         except Exception as exc:  # a bad value costs only its setting
             errors[i] = exc
             settings.append(None)
+    if not maker.agrees(todo[-1]["setting"], settings[-1]):
+        settings = [
+            maker.full(m["setting"]) if s is not None else None
+            for m, s in zip(todo, settings, strict=True)
+        ]
     valid = [i for i, s in enumerate(settings) if s is not None]
     rows = pd.DataFrame()
     try:
@@ -85,18 +93,77 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
     wall = time.perf_counter() - start
     rows = _with_run_columns(rows, records)
     counts = rows[MEMBER].value_counts() if len(rows) else pd.Series(dtype=int)
+    stats, peak = _statistics(rows), peak_rss_mb()
     for i, (member, record) in enumerate(zip(todo, records, strict=True)):
         _outcome(record, errors.get(i), int(counts.get(i, 0)), wall / len(todo))
+        record["peak_rss_mb"] = peak
         record.update(batch_id=cfg.batch, batch_size=len(todo), batch_wall_s=wall)
         if member["reason"] not in (None, store.NO_RECORD):
             record["recomputed_because"] = member["reason"]
         if record["status"] == "ok":
             record["inputs"] = inputs
-            row_statistics(record, rows[rows[MEMBER] == i])
+            record["stages_computed"] = int(stats["computed"].get(i, 0))
+            record["n_frame_errors"] = 0
+            if i in stats["errors"]:  # rare: the rows of that run say which frames
+                row_statistics(record, rows[rows[MEMBER] == i])
     ok = {i for i, r in enumerate(records) if r["status"] == "ok"}
     rows = rows[rows[MEMBER].isin(ok)] if len(rows) else rows
     store.save_batch(sweep_dir, cfg.batch, records, rows.drop(columns=MEMBER, errors="ignore"))
     return records
+
+
+def _statistics(rows: pd.DataFrame) -> dict[str, Any]:
+    """Per member: stages computed (not from the cache), and the members with frame errors
+    (what :func:`experiments.records.row_statistics` finds, for all members at once)."""
+    if not len(rows):
+        return {"computed": pd.Series(dtype=int), "errors": set()}
+    cached = rows[[c for c in rows if c.startswith("cached_")]].to_numpy(dtype=bool)
+    computed = pd.Series((~cached).sum(axis=1), index=rows.index).groupby(rows[MEMBER]).sum()
+    errors = set(rows.loc[rows["error"] != "", MEMBER].tolist())
+    return {"computed": computed, "errors": errors}
+
+
+class SettingsMaker:
+    """:func:`settings_from_config` of many settings of one batch, quickly: the first
+    setting's config is composed once, and each other top-level value is converted once (that
+    value set on the first config), then reused by every setting that has it."""
+
+    def __init__(self, first: dict[str, Any]) -> None:
+        self.first = first
+        self.cfg = OmegaConf.create(first)
+        self.base = settings_from_config(self.cfg)
+        self.fields = {f.name for f in dataclasses.fields(self.base)}
+        self.parts: dict[tuple[str, str], Any] = {}
+
+    def full(self, setting: dict[str, Any]) -> Settings:
+        """The slow way: the whole setting composed and converted."""
+        return settings_from_config(OmegaConf.create(setting))
+
+    def make(self, setting: dict[str, Any]) -> Settings:
+        """The core's :class:`Settings` of a setting of the batch."""
+        changes = {}
+        for key, value in setting.items():
+            if value == self.first.get(key):
+                continue
+            if key not in self.fields:
+                return self.full(setting)
+            memo = (key, json.dumps(value, sort_keys=True))
+            if memo not in self.parts:
+                self.cfg[key] = value
+                try:
+                    self.parts[memo] = getattr(settings_from_config(self.cfg), key)
+                finally:
+                    self.cfg[key] = self.first[key]
+            changes[key] = self.parts[memo]
+        return dataclasses.replace(self.base, **changes)
+
+    def agrees(self, setting: dict[str, Any], made: Settings | None) -> bool:
+        """True when the quick way gave the slow way's result for ``setting`` (a conversion
+        that reads several top-level values at once makes them differ)."""
+        try:
+            return made is None or self.full(setting) == made
+        except Exception:
+            return made is None
 
 
 def _outcome(record: dict, error: BaseException | None, n_rows: int, wall_s: float) -> None:
@@ -110,7 +177,7 @@ def _outcome(record: dict, error: BaseException | None, n_rows: int, wall_s: flo
         message = "".join(traceback.format_exception_only(error)).strip()
         record["traceback"] = "".join(traceback.format_exception(error, limit=8))
     record.update(status=status, message=message, end=now(), wall_s=wall_s,
-                  peak_rss_mb=peak_rss_mb(), n_rows=n_rows if status == "ok" else 0)  # fmt: skip
+                  n_rows=n_rows if status == "ok" else 0)  # fmt: skip
 
 
 def _with_run_columns(rows: pd.DataFrame, records: list[dict[str, Any]]) -> pd.DataFrame:

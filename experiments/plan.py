@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +28,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from experiments import store
-from experiments.config import setting_config, setting_hash
+from experiments.config import setting_config
 from experiments.records import now, peak_rss_mb, record_head
 from ttc.descriptors import check_pair
 
@@ -85,6 +86,7 @@ class SettingPlanner:
         self.template: list[str] | None = None
         self.base: dict[str, Any] = {}
         self.parts: dict[tuple[int, str], dict[str, Any] | None] = {}
+        self.texts: dict[int, tuple[Any, str]] = {}
 
     def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
         """The setting of the job with these overrides."""
@@ -105,6 +107,19 @@ class SettingPlanner:
             touched |= part.keys()
             setting.update(part)
         return setting
+
+    def run_id(self, setting: dict[str, Any]) -> str:
+        """:func:`setting_hash` of a setting this planner made: the canonical JSON is
+        assembled from the memorised JSON of its top-level values (they are shared objects)."""
+        parts = []
+        for key in sorted(setting):
+            value = setting[key]
+            text = self.texts.get(id(value))
+            if text is None or text[0] is not value:
+                text = (value, json.dumps(value, sort_keys=True, separators=(",", ":")))
+                self.texts[id(value)] = text
+            parts.append(json.dumps(key) + ":" + text[1])
+        return hashlib.sha256(("{" + ",".join(parts) + "}").encode()).hexdigest()[:16]
 
     def _part(self, position: int, item: str) -> dict[str, Any] | None:
         """The setting entries a template variant with ``item`` at ``position`` changes, or
@@ -172,15 +187,19 @@ def make_plan(
     members: dict[str, dict[str, Any]] = {}
     for overrides in jobs:
         setting = planner.setting(overrides)
-        rid = setting_hash(setting)
+        rid = planner.run_id(setting)
         members.setdefault(rid, {"run_id": rid, "overrides": list(overrides), "setting": setting})
     plan.settings = len(members)
-    checks = store.Checks()
+    checks, force = store.Checks(), bool(config.force)
+    runs_dir = Path(sweep_dir) / store.RUNS_DIR
+    recorded = set(os.listdir(runs_dir)) if runs_dir.is_dir() else set()
     todo = []
     for member in members.values():
+        rid = member["run_id"]
         if (
-            not config.force
-            and store.incomplete_reason(sweep_dir, member["run_id"], checks) is None
+            not force
+            and f"{rid}.json" in recorded
+            and store.incomplete_reason(sweep_dir, rid, checks) is None
         ):
             plan.complete += 1
         else:
@@ -206,7 +225,7 @@ def _job(batch: list[dict[str, Any]], sweep_dir: Path, plan: Plan) -> list[str]:
     batch_id = "batch-" + hashlib.sha256(" ".join(ids).encode()).hexdigest()[:16]
     path = plan_path(sweep_dir, batch_id)
     path.parent.mkdir(parents=True, exist_ok=True)
-    store.write_json_atomic({"batch_id": batch_id, "members": batch}, path)
+    store.write_json_atomic({"batch_id": batch_id, "members": batch}, path, indent=None)
     plan.batches += 1
     return [*batch[0]["overrides"], f"batch={batch_id}"]
 
@@ -232,7 +251,9 @@ def _drop_invalid(
         record = record_head(member["setting"], Path(sweep_dir).name, bool(config.cache.enabled))
         record.update(status="skipped", message=verdicts[pair], end=now(), wall_s=0.0,
                       peak_rss_mb=peak_rss_mb(), n_rows=0, skipped_at="plan")  # fmt: skip
-        store.write_json_atomic(record, store.run_paths(sweep_dir, record["run_id"])[1])
+        store.write_json_atomic(
+            record, store.run_paths(sweep_dir, record["run_id"])[1], indent=None
+        )
         skipped.append("skipped")
     if skipped:
         store.mark_progress(sweep_dir, "invalid-pairs", skipped)

@@ -87,9 +87,11 @@ def write_parquet_atomic(df: pd.DataFrame, path: Path, metadata: dict | None = N
     return hashlib.sha256(data).hexdigest()
 
 
-def write_json_atomic(obj: Any, path: Path) -> None:
-    """Write ``obj`` to ``path`` as JSON, atomically."""
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=1, default=str)))
+def write_json_atomic(obj: Any, path: Path, indent: int | None = 1) -> None:
+    """Write ``obj`` to ``path`` as JSON, atomically (``indent=None``: one line, written
+    several times faster: records of batches and plans)."""
+    text = json.dumps(obj, indent=indent, default=str)
+    atomic_write(path, lambda tmp: tmp.write_text(text))
 
 
 def run_paths(sweep_dir: Path, run_id: str) -> tuple[Path, Path]:
@@ -306,7 +308,7 @@ def save_batch(
             if record.get("status") == "ok":
                 record.update(rows_file=name, rows_sha256=sha)
     for record in records:
-        write_json_atomic(record, run_paths(sweep_dir, record["run_id"])[1])
+        write_json_atomic(record, run_paths(sweep_dir, record["run_id"])[1], indent=None)
 
 
 def list_records(sweep_dir: Path) -> list[dict[str, Any]]:

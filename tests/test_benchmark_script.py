@@ -24,8 +24,12 @@ def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr[-3000:]
     report = json.loads(out.read_text())
     for key in ("cold_s", "floor_s", "floor_unique_s", "cold_over_floor", "nocache_s",
-                "nocache_over_cold", "warm_filter_s", "peak_rss_mb", "git_commit", "versions"):  # fmt: skip
+                "nocache_over_cold", "warm_filter_s", "peak_rss_mb", "git_commit", "versions",
+                "cold_over_floor_unique", "rerun_s", "small_cold_s", "small_rerun_s"):  # fmt: skip
         assert key in report, key
+    assert report["small_settings"] == 8
+    assert report["missing"] == ["grand_cold_s", "grand_peak_rss_mb"]  # not run when reduced
+    assert report["rerun_s"] < report["cold_s"]  # nothing to compute
     assert report["settings"] == 16 and report["status"] == {"ok": 16}
     stages = report["floor_ms_by_stage"]
     assert all(stages[s] > 0 for s in ("objects", "keypoints", "descriptors", "matching_unique"))

@@ -174,10 +174,16 @@ def test_kill_and_resume(tmp_path: Path) -> None:
 
 
 def test_submitit_local_launcher(tmp_path: Path) -> None:
-    """The Slurm path's launcher, run locally: same records and merged dataset."""
+    """The Slurm path's launcher, run locally, on a batched sweep (a batch per array task):
+    same records and merged dataset."""
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     res = hydra_run(["-m", "hydra/launcher=submitit_local", "detector=fast",
-                     "descriptor=brief,orb", "dataset.last=2", "sweep_name=sub"], tmp_path)  # fmt: skip
+                     "descriptor=brief,orb", "keypoint_filter=none,zscore", "dataset.last=2",
+                     "sweep_name=sub"], tmp_path)  # fmt: skip
     assert res.returncode == 0, res.stderr[-3000:]
+    assert "4 to compute in 2 jobs (2 batches)" in res.stdout
     runs = pd.read_parquet(tmp_path / "sweeps" / "sub" / store.RUNS_FILE)
-    assert sorted(runs["descriptor"]) == ["brief", "orb"] and (runs["status"] == "ok").all()
+    assert sorted(runs["descriptor"]) == ["brief", "brief", "orb", "orb"]
+    assert (runs["status"] == "ok").all() and runs["batch_id"].nunique() == 2
+    frames = pd.read_parquet(tmp_path / "sweeps" / "sub" / store.FRAMES_FILE)
+    assert frames.loc[frames["is_lead"]].groupby("run_id").size().eq(2).all()

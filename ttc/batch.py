@@ -47,7 +47,7 @@ from ttc.frames import (
 )
 from ttc.keypoint_filter import filter_box_matches
 from ttc.keypoints import X, Y
-from ttc.lidar import assign_points_to_boxes, project_to_image
+from ttc.lidar import assign_points_to_boxes, lead_box_of, project_to_image
 from ttc.lidar_ttc import lidar_ttc
 from ttc.matching import select_matches
 from ttc.pipeline import (
@@ -161,9 +161,7 @@ def _finish(
     """One frame of every member's rows (failed members left out), each member's rows through
     :func:`~ttc.pipeline.finish_rows`. The rows become one frame first (one frame per member
     would cost more than the rows themselves)."""
-    records = [
-        {**row, MEMBER: member} for member, rows in parts if member not in failed for row in rows
-    ]
+    records = [row for member, rows in parts if member not in failed for row in rows]
     if not records:
         return pd.DataFrame()
     every = pd.DataFrame.from_records(records)
@@ -197,7 +195,7 @@ def _group_rows(
                 if (prev, curr) not in matches:
                     error = broken.get(curr) or broken[prev]
                     for m in members:
-                        out[m].append(_error_row(prev, curr, dt, error))
+                        out[m].append({**_error_row(prev, curr, dt, error), MEMBER: m})
                     continue
                 shared = _SharedPair(
                     frames, calib, dt, prev, curr, per_frame, matches[(prev, curr)]
@@ -206,7 +204,7 @@ def _group_rows(
                     if m in failed:
                         continue
                     try:
-                        out[m].extend(shared.rows(settings[m], keys[m]))
+                        out[m].extend(shared.rows(settings[m], keys[m], m))
                     except Exception as exc:  # a setting that raises costs only itself
                         failed[m] = exc
     except Exception as exc:  # the group's stages raised: every member fails with it
@@ -244,7 +242,9 @@ class _SharedPair:
         self.kp_curr = desc[curr]["keypoints"]
         self.xy_prev = desc[prev]["keypoints"][:, [X, Y]]
         self.xy_curr = self.kp_curr[:, [X, Y]]
-        self.memo: dict[str, dict] = {k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base")}
+        self.memo: dict[str, dict] = {
+            k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base", "head")
+        }
         self.assoc: tuple | None = None
 
     def _selected(self, s: Settings, k: MemberKeys) -> tuple[Any, float]:
@@ -271,10 +271,7 @@ class _SharedPair:
                 return uv, owners
 
             (uv, owners), ms = _timed(associate)
-            n_curr = len(obj[curr]["roi"])
-            counts = np.bincount(owners[curr][owners[curr] >= 0], minlength=n_curr)
-            lead = int(np.argmax(counts)) if n_curr and counts.max() > 0 else -1
-            self.assoc = (owners, lead, ms)
+            self.assoc = (owners, lead_box_of(owners[curr], len(obj[curr]["roi"])), ms)
         return self.assoc
 
     def _fp1(self, s: Settings, k: MemberKeys, selected: Any) -> tuple[Any, float]:
@@ -323,8 +320,9 @@ class _SharedPair:
         self.memo["base"][key] = base
         return base
 
-    def rows(self, s: Settings, k: MemberKeys) -> list[dict[str, Any]]:
-        """The rows ``_pair_rows`` gives for this pair under setting ``s`` (keys ``k``)."""
+    def rows(self, s: Settings, k: MemberKeys, member: int) -> list[dict[str, Any]]:
+        """The rows ``_pair_rows`` gives for this pair under setting ``s`` (keys ``k``), each
+        with :data:`MEMBER` = ``member``."""
         selected, ms_select = self._selected(s, k)
         box_matches, ms_fp1 = self._fp1(s, k, selected)
         owners, lead_box, ms_assoc = self._association(s)
@@ -339,18 +337,23 @@ class _SharedPair:
         base = self._base(k, selected, ms_select, ms_fp1, ms_assoc)
         rows = []
         for prev_box, curr_box in box_pairs:
-            row = dict(base)
-            row.update(self._box_row(s, k, selected, owners, (prev_box, curr_box), lead_box))
+            row = {**base, **self._head(owners, prev_box, curr_box, lead_box)}
+            if prev_box >= 0:
+                row.update(self._fp2(s, k, owners, prev_box, curr_box))
+                row.update(self._fp34(s, k, selected, curr_box))
             row["box_shared_matches"] = shared.get(curr_box, 0) if prev_box >= 0 else 0
             row["error"] = ""
+            row[MEMBER] = member
             rows.append(row)
         return rows
 
-    def _box_row(
-        self, s: Settings, k: MemberKeys, selected: Any, owners: dict, boxes: tuple, lead: int
-    ) -> dict[str, Any]:
-        """``ttc.pipeline._box_row`` with FP.2–FP.4 shared (see the module docstring)."""
-        (prev_box, curr_box), curr, obj = boxes, self.curr, self.obj
+    def _head(self, owners: dict, prev_box: int, curr_box: int, lead: int) -> dict[str, Any]:
+        """The box columns of ``ttc.pipeline._box_row`` (with its empty FP.2–FP.4 result when
+        the box pair has no previous box), once per box pair."""
+        key = (prev_box, curr_box, lead)
+        if key in self.memo["head"]:
+            return self.memo["head"][key]
+        curr, obj = self.curr, self.obj
         row: dict[str, Any] = {
             "prev_box": prev_box,
             "curr_box": curr_box,
@@ -370,9 +373,7 @@ class _SharedPair:
             row.update(EMPTY_BOX_RESULT, lidar_reason=reason, camera_reason=reason)
             if curr_box >= 0:
                 row["lidar_points_curr"] = int(np.sum(owners[curr] == curr_box))
-            return row
-        row.update(self._fp2(s, k, owners, prev_box, curr_box))
-        row.update(self._fp34(s, k, selected, curr_box))
+        self.memo["head"][key] = row
         return row
 
     def _fp2(
@@ -399,24 +400,31 @@ class _SharedPair:
 
     def _fp34(self, s: Settings, k: MemberKeys, selected: Any, curr_box: int) -> dict[str, Any]:
         fp3_key = (k.selector, curr_box, s.box_matching.shrink, k.keypoint_filter)
-        roi = self.obj[self.curr]["roi"][curr_box]
-
-        def fp3():
-            return filter_box_matches(
-                self.xy_prev, self.xy_curr, selected.prev_idx, selected.curr_idx,
-                roi, s.box_matching.shrink, s.keypoint_filter,
-            )  # fmt: skip
-
-        filt, ms_fp3 = _memo(self.memo["fp3"], fp3_key, fp3)
-        fp4_key = (*fp3_key, k.camera_ttc)
-        if fp4_key not in self.memo["fp4"]:
-            kept_prev = self.xy_prev[selected.prev_idx[filt.kept]]
-            kept_curr = self.xy_curr[selected.curr_idx[filt.kept]]
-            dt = self.dt
-            cam, ms_fp4 = _timed(lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc))
-            self.memo["fp4"][fp4_key] = dict(
-                ttc_camera=cam.ttc, camera_reason=cam.reason, camera_ratio=cam.ratio,
-                camera_pairs=cam.n_pairs, matches_in_box=filt.n_in_box, matches_kept=filt.n_kept,
-                matches_removed=filt.n_removed, ms_keypoint_filter=ms_fp3, ms_camera_ttc=ms_fp4,
-            )  # fmt: skip
+        fp4_key = (fp3_key, k.camera_ttc)
+        found = self.memo["fp4"].get(fp4_key)
+        if found is not None:
+            return found
+        if fp3_key not in self.memo["fp3"]:
+            roi = self.obj[self.curr]["roi"][curr_box]
+            self.memo["fp3"][fp3_key] = _timed(
+                lambda: filter_box_matches(
+                    self.xy_prev,
+                    self.xy_curr,
+                    selected.prev_idx,
+                    selected.curr_idx,
+                    roi,
+                    s.box_matching.shrink,
+                    s.keypoint_filter,
+                )  # fmt: skip
+            )
+        filt, ms_fp3 = self.memo["fp3"][fp3_key]
+        kept_prev = self.xy_prev[selected.prev_idx[filt.kept]]
+        kept_curr = self.xy_curr[selected.curr_idx[filt.kept]]
+        dt = self.dt
+        cam, ms_fp4 = _timed(lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc))
+        self.memo["fp4"][fp4_key] = dict(
+            ttc_camera=cam.ttc, camera_reason=cam.reason, camera_ratio=cam.ratio,
+            camera_pairs=cam.n_pairs, matches_in_box=filt.n_in_box, matches_kept=filt.n_kept,
+            matches_removed=filt.n_removed, ms_keypoint_filter=ms_fp3, ms_camera_ttc=ms_fp4,
+        )  # fmt: skip
         return self.memo["fp4"][fp4_key]

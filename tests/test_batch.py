@@ -1,0 +1,165 @@
+"""Batched sweeps (issue #11) through the real command line: a batched sweep gives the rows
+and records one setting per job gives, a finished sweep launches no worker, and a
+grand-style sweep merges into a dataset queryable by partition."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from experiments import store
+from tests.conftest import PROJECT_ROOT
+
+pytestmark = pytest.mark.slow
+
+#: 2 detectors x 2 descriptors (one pair invalid) x 2 selectors x 2 filters x 2 estimators
+GRID = ["detector=fast,akaze", "descriptor=brief,akaze", "selector=nn,knn",
+        "keypoint_filter=none,zscore", "lidar_ttc=median,cluster", "dataset.last=2",
+        "cache.enabled=false", "sweep_name=grid"]  # fmt: skip
+#: Record fields that differ between two computations of one setting (times, machine load,
+#: where the rows are stored).
+TIMING_AND_STORAGE = {"start", "end", "wall_s", "peak_rss_mb", "batch_id", "batch_size",
+                      "batch_wall_s", "rows_file", "rows_sha256", "traceback"}  # fmt: skip
+CODE_VERSION = {"git_commit", "git_dirty"}
+TTC_COLUMNS = ["ttc_lidar", "ttc_camera", "d_prev", "d_curr", "camera_ratio", "camera_pairs",
+               "matches_total", "matches_in_box", "matches_kept", "lidar_reason",
+               "camera_reason", "prev_box", "curr_box", "is_lead"]  # fmt: skip
+
+
+def run(args: list[str], results: Path, cache: Path) -> subprocess.CompletedProcess:
+    """``python -m experiments.run args`` with results and cache where the test says."""
+    env = {**os.environ, "TTC_RESULTS_DIR": str(results), "TTC_CACHE_DIR": str(cache)}
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.run", "-m", *args], cwd=PROJECT_ROOT, env=env,
+        capture_output=True, text=True, timeout=900,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def two_ways(tmp_path_factory) -> dict[str, object]:
+    """The same 32 settings batched (default) and one setting per job, then the batched
+    sweep again (nothing to compute)."""
+    tmp = tmp_path_factory.mktemp("batch")
+    batched = run(GRID, tmp / "batched", tmp / "cache")
+    assert batched.returncode == 0, batched.stderr[-3000:]
+    single = run([*GRID, "hydra.sweeper.max_settings_per_job=1"], tmp / "single", tmp / "cache")
+    assert single.returncode == 0, single.stderr[-3000:]
+    runs_dir = tmp / "batched" / "grid" / store.RUNS_DIR
+    before = {p.name: p.stat().st_mtime_ns for p in runs_dir.iterdir()}
+    again = run(GRID, tmp / "batched", tmp / "cache")
+    assert again.returncode == 0, again.stderr[-3000:]
+    after = {p.name: p.stat().st_mtime_ns for p in runs_dir.iterdir()}
+    return {"tmp": tmp, "batched": batched, "single": single, "again": again,
+            "before": before, "after": after}  # fmt: skip
+
+
+def test_batched_sweep_gives_the_rows_and_records_of_one_setting_per_job(two_ways) -> None:
+    tmp = two_ways["tmp"]
+    assert "to compute in 3 jobs (3 batches)" in two_ways["batched"].stdout
+    assert "to compute in 24 jobs (0 batches)" in two_ways["single"].stdout
+    frames_b, runs_b = store.load_sweep(tmp / "batched" / "grid")
+    frames_s, runs_s = store.load_sweep(tmp / "single" / "grid")
+    assert len(runs_b) == len(runs_s) == 32
+    assert runs_b["status"].value_counts().to_dict() == {"ok": 24, "skipped": 8}
+    assert runs_b["batch_size"].dropna().eq(8).all()  # the ok ones were computed in batches
+    assert "batch_id" not in runs_s or runs_s["batch_id"].isna().all()
+    records_b = {r["run_id"]: r for r in store.list_records(tmp / "batched" / "grid")}
+    records_s = {r["run_id"]: r for r in store.list_records(tmp / "single" / "grid")}
+    assert records_b.keys() == records_s.keys()  # same run ids
+    for records in (records_b, records_s):  # the code version: one per sweep (the tree may
+        assert len({r["git_commit"] for r in records.values()}) == 1  # move between the two)
+    for rid, single in records_s.items():
+        batched = records_b[rid]
+        fields = (single.keys() | batched.keys()) - TIMING_AND_STORAGE - CODE_VERSION
+        for field in fields:
+            assert batched.get(field) == single.get(field), (rid, field)
+    assert set(frames_b.columns) == set(frames_s.columns)
+    frames_b, frames_s = frames_b.drop(columns="git_commit"), frames_s.drop(columns="git_commit")
+    key = ["run_id", "frame", "curr_box", "prev_box"]
+    b = frames_b.sort_values(key, ignore_index=True)
+    s = frames_s[frames_b.columns].sort_values(key, ignore_index=True)
+    assert len(b) == len(s) and b["run_id"].nunique() == 24
+    for column in TTC_COLUMNS:
+        np.testing.assert_array_equal(b[column].to_numpy(), s[column].to_numpy(), column)
+    # one rows file per batch, named by the records that point to it
+    files = {r["rows_file"] for r in records_b.values() if r["status"] == "ok"}
+    assert len(files) == 3 and all(f.startswith("batch-") for f in files)
+
+
+def test_finished_sweep_launches_no_worker(two_ways) -> None:
+    again = two_ways["again"]
+    assert "sweep plan: 32 settings: 32 already complete (not launched)" in again.stdout
+    assert "to compute in 0 jobs" in again.stdout
+    assert "Launching" not in again.stderr + again.stdout  # the launcher was not called
+    assert "this invocation: 0 computed, 32 already complete" in again.stdout
+    assert two_ways["after"] == two_ways["before"]  # no record, rows or lock file touched
+    jobs = two_ways["tmp"] / "batched" / "grid" / "jobs"
+    assert sorted(p.name for p in jobs.iterdir()) == ["0", "1", "2"]  # the first run's jobs
+
+
+def test_a_recomputed_setting_of_a_batch_keeps_the_others(two_ways, tmp_path) -> None:
+    """Damage one batched run's record: the re-run computes that setting only (a new rows
+    file), and the others keep pointing to the old file, still whole."""
+    tmp = two_ways["tmp"]
+    sweep = tmp / "batched" / "grid"
+    records = [r for r in store.list_records(sweep) if r["status"] == "ok"]
+    victim = records[0]
+    store.run_paths(sweep, victim["run_id"])[1].write_text("{not json")
+    res = run(GRID, tmp / "batched", tmp / "cache")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "31 already complete (not launched)" in res.stdout
+    assert "1 to compute in 1 jobs (0 batches)" in res.stdout
+    redone = store.read_record(sweep, victim["run_id"])
+    assert redone["status"] == "ok" and "rows_file" not in redone  # computed alone
+    frames, runs = store.load_sweep(sweep)
+    assert (runs["status"] != "failed").all() and frames["run_id"].nunique() == 24
+    old = store.read_record(sweep, records[1]["run_id"])
+    assert old["rows_file"] == victim["rows_file"] and store.is_complete(sweep, old["run_id"])
+
+
+def test_grand_style_sweep_merges_into_partitions(tmp_path) -> None:
+    """``+experiment=grand`` with two values per axis on frames 0-2 (128 settings, 32 of an
+    invalid pair): merged, and a query of one partition reads only its row groups."""
+    args = ["+experiment=grand", "detector=fast,akaze", "descriptor=brief,akaze",
+            "matcher=bf,flann", "selector=nn,knn", "box_matching=mutual_best,hungarian",
+            "lidar_ttc=median,cluster", "keypoint_filter=none,zscore",
+            "camera_ttc=median_ratio,mean_ratio", "dataset.last=2", "sweep_name=g"]  # fmt: skip
+    res = run(args, tmp_path / "sweeps", tmp_path / "cache")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "sweep plan: 256 settings" in res.stdout
+    assert "64 skipped as invalid" in res.stdout  # fast x akaze, each of its 64 settings
+    sweep = tmp_path / "sweeps" / "g"
+    runs = pd.read_parquet(sweep / store.RUNS_FILE)
+    assert len(runs) == 256 and runs["status"].value_counts().to_dict() == {
+        "ok": 192,
+        "skipped": 64,
+    }
+    assert (runs.loc[runs["status"] == "skipped", "skipped_at"] == "plan").all()
+    path = sweep / store.FRAMES_FILE
+    meta = pq.ParquetFile(path).metadata
+    columns = {meta.schema.column(i).name: i for i in range(meta.num_columns)}
+    groups = []
+    for g in range(meta.num_row_groups):
+        stats = [
+            meta.row_group(g).column(columns[c]).statistics for c in ("detector", "descriptor")
+        ]
+        assert all(s.min == s.max for s in stats)  # one detector x descriptor per row group
+        groups.append((stats[0].min, stats[1].min))
+    assert set(groups) == {("fast", "brief"), ("akaze", "brief"), ("akaze", "akaze")}
+    whole = pq.read_table(path).to_pandas()
+    assert whole["run_id"].nunique() == 192 and len(whole) == meta.num_rows
+    part = pq.read_table(path, filters=[("detector", "=", "akaze"), ("descriptor", "=", "akaze")])
+    expected = whole[(whole["detector"] == "akaze") & (whole["descriptor"] == "akaze")]
+    assert part.num_rows == len(expected) > 0
+    wanted = [g for g, key in enumerate(groups) if key == ("akaze", "akaze")]
+    assert pq.ParquetFile(path).read_row_groups(wanted).num_rows == len(expected)
+    assert json.loads((sweep / ".plan" / f"{runs['batch_id'].dropna().iloc[0]}.json")
+                      .read_text())["members"]  # fmt: skip
