@@ -31,8 +31,8 @@ def chromium_path() -> str | None:
 class Browser:
     """One headless Chromium with one page; use as a context manager.
 
-    ``errors`` collects console messages of level error, uncaught exceptions and failed
-    loads of the page's own files (as text)."""
+    ``errors`` collects console messages of level error, uncaught exceptions, failed loads
+    and every request that leaves the machine's files (http, https, ...), as text."""
 
     def __init__(self, profile: Path, timeout: float = 30.0) -> None:
         exe = chromium_path()
@@ -94,6 +94,10 @@ class Browser:
             self.errors.append(
                 f"log: {params['entry'].get('text')} {params['entry'].get('url', '')}"
             )
+        elif method == "Network.requestWillBeSent":
+            url = params["request"]["url"]
+            if not url.startswith(("file:", "blob:", "data:", "about:")):
+                self.errors.append(f"network request: {url}")
         elif method == "Network.loadingFailed" and not params.get("canceled"):
             self.errors.append(f"load failed: {params.get('errorText')} ({params.get('type')})")
 

@@ -141,15 +141,15 @@ def fp6_page(
         f"<p>{inline(fp6._way_off_paragraph(t))}</p>",
         f"<h2>Reasons of the {len(way)} way-off rows (of {len(t)} setting × frame rows)</h2>",
         static_table(codes.reset_index()),
+        '<h2 id="way-off">Way-off frames</h2>',
+        "<p>Every way-off setting × frame; click a frame for its reasons and numbers on the "
+        f"setting's page ({len(pictures)} pictured).</p>",
+        interactive_table(table, "way_off", ["setting", "frame", "picture"]),
         "<h2>Figures</h2>",
         *[
             _figure(figures.get(n), n)
             for n in ("fp6_heatmap.png", "fp6_ttc_series.png", "fp6_pareto.png")
         ],  # fmt: skip
-        '<h2 id="way-off">Way-off frames</h2>',
-        "<p>Every way-off setting × frame; click a frame for its reasons and numbers on the "
-        f"setting's page ({len(pictures)} pictured).</p>",
-        interactive_table(table, "way_off", ["setting", "frame", "picture"]),
     ]
     return page("FP.6 camera", "\n".join(parts), here="fp6.html", tables=True)
 
