@@ -34,8 +34,10 @@ table.plain { border-collapse: collapse; margin: 8px 0; }
 table.plain th, table.plain td { border: 1px solid #d5d9de; padding: 3px 7px; text-align: left;
                                  vertical-align: top; }
 table.plain th { background: #f4f6f8; }
-table.plain td.num { text-align: right; font-variant-numeric: tabular-nums; }
+table.plain td { font-variant-numeric: tabular-nums; }
 tr.way-off td, tr.flagged td { background: #fff0f0; }
+[id] { scroll-margin-top: 48px; }
+tr:target td, section:target { background: #fff3bf; }
 code { background: #f2f2f2; padding: 0 3px; border-radius: 3px; }
 details { margin: 8px 0; } pre { font-size: 12px; max-height: 300px; overflow: auto; }
 img.figure { max-width: 100%; border: 1px solid #ddd; }
@@ -159,16 +161,12 @@ def static_table(
     """``df`` as a plain HTML table; cells of ``html_columns`` are HTML already, the others are
     formatted (:func:`fmt`) and escaped; optional class and id per row."""
     raw = set(html_columns)
-    numeric = {c for c in df.columns if pd.api.types.is_numeric_dtype(df[c]) and c not in raw}
     head = "".join(f"<th>{esc(c)}</th>" for c in df.columns)
     columns = []
     for c in df.columns:
         values = df[c].tolist()
-        if c in raw:
-            columns.append([f"<td>{v}</td>" for v in values])
-        else:
-            opening = '<td class="num">' if c in numeric else "<td>"
-            columns.append([f"{opening}{esc(fmt(v))}</td>" for v in values])
+        cells = values if c in raw else [esc(fmt(v)) for v in values]
+        columns.append([f"<td>{v}</td>" for v in cells])
     classes = row_class if row_class is not None else [""] * len(df)
     ids = row_id if row_id is not None else [""] * len(df)
     rows = [

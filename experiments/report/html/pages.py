@@ -126,8 +126,7 @@ def fp6_page(
     codes = way["reasons"].str.split(";").explode().value_counts().rename_axis("reason")
     stems = [fp6.picture_stem(s, f) for s, f in zip(way["setting"], way["frame"], strict=True)]
     table = pd.DataFrame({
-        "setting": [_link(setting_href(d, s), s)
-                    for d, s in zip(way["dataset"], way["setting"], strict=True)],
+        "setting": way["setting"].to_numpy(),
         "frame": [_link(f"{setting_href(d, s)}#f{int(f)}", int(f))
                   for d, s, f in zip(way["dataset"], way["setting"], way["frame"], strict=True)],
         "ttc_camera": way["ttc_camera"].to_numpy(), "ttc_ref_s": way["ttc_ref_s"].to_numpy(),
@@ -144,7 +143,7 @@ def fp6_page(
         '<h2 id="way-off">Way-off frames</h2>',
         "<p>Every way-off setting × frame; click a frame for its reasons and numbers on the "
         f"setting's page ({len(pictures)} pictured).</p>",
-        interactive_table(table, "way_off", ["setting", "frame", "picture"]),
+        interactive_table(table, "way_off", ["frame", "picture"]),
         "<h2>Figures</h2>",
         *[
             _figure(figures.get(n), n)
@@ -157,27 +156,48 @@ def fp6_page(
 # --------------------------------------------------------------------------- settings
 
 
-def _frame_section(row: dict, picture: str | None) -> str:
-    """One way-off frame of a setting's page: its reasons, the numbers and its picture."""
+def _frame_section(row: dict, picture: str) -> str:
+    """A pictured way-off frame of a setting's page: its reasons, the numbers, its picture."""
     numbers = (f"camera TTC {fmt(row['ttc_camera'])} s ({esc(row['camera_reason'])}), reference "
                f"{fmt(row['ttc_ref_s'])} s, relative error {fmt(row['camera_rel_err']) or 'n/a'}; "
                f"median distance ratio {fmt(row['camera_ratio'], 5)}; "
                f"{fmt(row['matches_in_box'])} matches in the box, {fmt(row['matches_kept'])} "
                f"kept, {fmt(row['matches_removed'])} removed")  # fmt: skip
-    image = (f'<a href="../pictures/fp6/{esc(picture)}"><img class="picture" loading="lazy" '
-             f'src="../pictures/fp6/{esc(picture)}" alt="matches of frame {int(row["frame"])}">'
-             "</a>" if picture else
-             '<p class="muted">(not pictured: the report draws the worst frames only)</p>')  # fmt: skip
+    src = f"../pictures/fp6/{esc(picture)}"
     return (f'<section class="frame" id="f{int(row["frame"])}"><h3>frame '
             f'{int(row["prev_frame"])} → {int(row["frame"])}: {esc(row["reasons"])}</h3>'
-            f"<p>{esc(row['reason_text'])}</p><p>{numbers}</p>{image}</section>")  # fmt: skip
+            f"<p>{esc(row['reason_text'])}</p><p>{numbers}</p>"
+            f'<a href="{src}"><img class="picture" loading="lazy" src="{src}" '
+            f'alt="matches of frame {int(row["frame"])}"></a></section>')  # fmt: skip
+
+
+def _frames_table(rows: pd.DataFrame, pictured: set[int]) -> str:
+    """Every frame of a setting: its numbers, way-off rows highlighted with their reasons and
+    explanation; a way-off row is the target ``#f<frame>`` unless the frame is pictured (then
+    its frame links to the picture's section)."""
+    way = rows["way_off"].astype(bool).tolist()
+    frames = rows["frame"].astype(int).tolist()
+    table = pd.DataFrame({
+        "frame": [f'<a href="#f{f}">{f}</a>' if f in pictured else str(f) for f in frames],
+        "TTC camera (s)": rows["ttc_camera"].to_numpy(),
+        "reason": rows["camera_reason"].to_numpy(),
+        "TTC ref (s)": rows["ttc_ref_s"].to_numpy(),
+        "rel. error": rows["camera_rel_err"].to_numpy(),
+        "ratio": rows["camera_ratio"].map(lambda v: fmt(v, 5)).to_numpy(),
+        "in box": rows["matches_in_box"].to_numpy(), "kept": rows["matches_kept"].to_numpy(),
+        "removed": rows["matches_removed"].to_numpy(),
+        "way off because": rows["reasons"].where(rows["way_off"], "").fillna("").to_numpy(),
+        "explanation": rows["reason_text"].where(rows["way_off"], "").fillna("").to_numpy(),
+    })  # fmt: skip
+    ids = [f"f{f}" if w and f not in pictured else "" for f, w in zip(frames, way, strict=True)]
+    return static_table(table, ["frame"], ["way-off" if w else "" for w in way], ids)
 
 
 def setting_page(
     rank_row: pd.Series, rows: pd.DataFrame, reference: pd.DataFrame, pictures: dict[str, str]
 ) -> str:
-    """A setting's page: its metrics, its TTC series against the reference (inline SVG), its
-    way-off frames with reasons, numbers and pictures, and every frame's row."""
+    """A setting's page: its TTC series against the reference (inline SVG), its metrics,
+    every frame (way-off ones with their reasons) and the pictured way-off frames."""
     dataset, setting = rank_row["dataset"], rank_row["setting"]
     rows = rows.sort_values("frame")
     names = [m for m in SETTING_METRICS if m in rank_row]
@@ -188,11 +208,10 @@ def setting_page(
     axes = ", ".join(f"{a}: <code>{esc(rank_row[a])}</code>" for a in ev.CAMERA_AXES[:-1]
                      if a in rank_row)  # fmt: skip
     way = rows[rows["way_off"]]
-    sections = [_frame_section(r, pictures.get(fp6.picture_stem(setting, r["frame"])))
-                for r in way.to_dict("records")]  # fmt: skip
-    frames = rows[FRAME_COLUMNS].copy()
-    frames["frame"] = [f'<a href="#f{f}">{f}</a>' if w else str(f)
-                       for f, w in zip(rows["frame"], rows["way_off"], strict=True)]  # fmt: skip
+    stems = {int(f): pictures.get(fp6.picture_stem(setting, f)) for f in way["frame"]}
+    pictured = {f for f, name in stems.items() if name}
+    sections = [_frame_section(r, stems[int(r["frame"])])
+                for r in way[way["frame"].isin(pictured)].to_dict("records")]  # fmt: skip
     parts = [
         f'<h1>{esc(setting)} <span class="muted">({esc(dataset)})</span></h1>',
         f'<p>{axes}. <a href="../index.html#ranking-table">back to the ranking</a></p>',
@@ -200,10 +219,9 @@ def setting_page(
         ttc_series_svg(rows, reference),
         "<h2>Metrics</h2>",
         metrics,
-        f'<h2 id="way-off">Way-off frames ({len(way)} of {len(rows)})</h2>',
-        *(sections or ["<p>none</p>"]),
-        "<h2>Every frame</h2>",
-        static_table(frames, ["frame"], ["way-off" if w else "" for w in rows["way_off"]]),
+        f'<h2 id="way-off">Frames ({len(way)} of {len(rows)} way off, highlighted)</h2>',
+        _frames_table(rows, pictured),
+        *(["<h2>Pictured way-off frames</h2>", *sections] if sections else []),
     ]
     return page(f"{setting} ({dataset})", "\n".join(parts), depth=1)
 

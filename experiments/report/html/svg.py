@@ -95,7 +95,7 @@ def ttc_series_svg(rows: pd.DataFrame, reference: pd.DataFrame) -> str:
         valid = np.isfinite(r.ttc_camera) and r.ttc_camera > 0
         x, y = _x(r.frame, x0, x1), _y(r.ttc_camera if valid else top, top)
         colour = WAY_OFF_COLOUR if r.way_off else SERIES_COLOUR
-        title = (f"frame {r.frame}: camera {r.ttc_camera:.2f} s, reference {r.ttc_ref_s:.2f} s"
+        title = (f"frame {r.frame}: {r.ttc_camera:.1f} s, reference {r.ttc_ref_s:.1f} s"
                  + (f"; way off: {r.reasons}" if r.way_off else ""))  # fmt: skip
         mark = (f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{4 if r.way_off else 2.5}" fill="{colour}">'
                 if valid else
