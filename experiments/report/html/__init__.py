@@ -68,7 +68,7 @@ def html_report(
             if rows is None:
                 continue
             path = folder / pages.setting_href(row["dataset"], row["setting"])
-            write_text(pages.setting_page(row, rows, reference, fp6_pictures), path)
+            write_text(pages.setting_page(row, rows, fp6_pictures), path)
     else:
         write_text(pages.page("FP.6 camera", "<p>No camera setting ran.</p>", here="fp6.html"),
                    folder / "fp6.html")  # fmt: skip

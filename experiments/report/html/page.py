@@ -152,6 +152,26 @@ def fmt(value: object, digits: int = 3) -> str:
     return str(value)
 
 
+def html_table(
+    columns: dict[str, Sequence[str]],
+    row_class: Sequence[str] | None = None,
+    row_id: Sequence[str] | None = None,
+) -> str:
+    """A plain HTML table of cells that are HTML already (header: the keys, escaped);
+    optional class and id per row."""
+    head = "".join(f"<th>{esc(c)}</th>" for c in columns)
+    n = len(next(iter(columns.values()), []))
+    classes = row_class if row_class is not None else [""] * n
+    ids = row_id if row_id is not None else [""] * n
+    rows = [
+        "<tr" + (f' class="{k}"' if k else "") + (f' id="{i}"' if i else "") + "><td>"
+        + "</td><td>".join(cells) + "</td></tr>"
+        for k, i, *cells in zip(classes, ids, *columns.values(), strict=True)
+    ]  # fmt: skip
+    return (f'<table class="plain"><thead><tr>{head}</tr></thead>'
+            f"<tbody>{''.join(rows)}</tbody></table>")  # fmt: skip
+
+
 def static_table(
     df: pd.DataFrame,
     html_columns: Iterable[str] = (),
@@ -161,21 +181,11 @@ def static_table(
     """``df`` as a plain HTML table; cells of ``html_columns`` are HTML already, the others are
     formatted (:func:`fmt`) and escaped; optional class and id per row."""
     raw = set(html_columns)
-    head = "".join(f"<th>{esc(c)}</th>" for c in df.columns)
-    columns = []
-    for c in df.columns:
-        values = df[c].tolist()
-        cells = values if c in raw else [esc(fmt(v)) for v in values]
-        columns.append([f"<td>{v}</td>" for v in cells])
-    classes = row_class if row_class is not None else [""] * len(df)
-    ids = row_id if row_id is not None else [""] * len(df)
-    rows = [
-        "<tr" + (f' class="{k}"' if k else "") + (f' id="{i}"' if i else "") + ">"
-        + "".join(cells) + "</tr>"
-        for k, i, *cells in zip(classes, ids, *columns, strict=True)
-    ]  # fmt: skip
-    return (f'<table class="plain"><thead><tr>{head}</tr></thead>'
-            f"<tbody>{''.join(rows)}</tbody></table>")  # fmt: skip
+    columns = {
+        str(c): df[c].tolist() if c in raw else [esc(fmt(v)) for v in df[c].tolist()]
+        for c in df.columns
+    }
+    return html_table(columns, row_class, row_id)
 
 
 def interactive_table(

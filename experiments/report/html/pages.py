@@ -6,6 +6,7 @@ HTML; :mod:`experiments.report.html` writes them."""
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -16,6 +17,7 @@ from experiments.report.header import provenance_markdown
 from experiments.report.html.page import (
     esc,
     fmt,
+    html_table,
     inline,
     interactive_table,
     markdown_html,
@@ -171,56 +173,60 @@ def _frame_section(row: dict, picture: str) -> str:
             f'alt="matches of frame {int(row["frame"])}"></a></section>')  # fmt: skip
 
 
-def _frames_table(rows: pd.DataFrame, pictured: set[int]) -> str:
-    """Every frame of a setting: its numbers, way-off rows highlighted with their reasons and
-    explanation; a way-off row is the target ``#f<frame>`` unless the frame is pictured (then
-    its frame links to the picture's section)."""
-    way = rows["way_off"].astype(bool).tolist()
-    frames = rows["frame"].astype(int).tolist()
-    table = pd.DataFrame({
+def _cells(values: Sequence, digits: int = 3) -> list[str]:
+    """Formatted, escaped table cells (:func:`fmt`)."""
+    return [esc(fmt(v, digits)) for v in values]
+
+
+def _frames_table(rows: dict[str, list], pictured: set[int]) -> str:
+    """Every frame of a setting (``rows``: its columns as lists): its numbers, way-off rows
+    highlighted with their reasons and explanation; a way-off row is the target
+    ``#f<frame>`` unless the frame is pictured (then its frame links to the picture's
+    section)."""
+    way, frames = rows["way_off"], [int(f) for f in rows["frame"]]
+    columns = {
         "frame": [f'<a href="#f{f}">{f}</a>' if f in pictured else str(f) for f in frames],
-        "TTC camera (s)": rows["ttc_camera"].to_numpy(),
-        "reason": rows["camera_reason"].to_numpy(),
-        "TTC ref (s)": rows["ttc_ref_s"].to_numpy(),
-        "rel. error": rows["camera_rel_err"].to_numpy(),
-        "ratio": rows["camera_ratio"].map(lambda v: fmt(v, 5)).to_numpy(),
-        "in box": rows["matches_in_box"].to_numpy(), "kept": rows["matches_kept"].to_numpy(),
-        "removed": rows["matches_removed"].to_numpy(),
-        "way off because": rows["reasons"].where(rows["way_off"], "").fillna("").to_numpy(),
-        "explanation": rows["reason_text"].where(rows["way_off"], "").fillna("").to_numpy(),
-    })  # fmt: skip
+        "TTC camera (s)": _cells(rows["ttc_camera"]), "reason": _cells(rows["camera_reason"]),
+        "TTC ref (s)": _cells(rows["ttc_ref_s"]), "rel. error": _cells(rows["camera_rel_err"]),
+        "ratio": _cells(rows["camera_ratio"], 5), "in box": _cells(rows["matches_in_box"]),
+        "kept": _cells(rows["matches_kept"]), "removed": _cells(rows["matches_removed"]),
+        "way off because": [esc(r) if w else "" for r, w in zip(rows["reasons"], way, strict=True)],
+        "explanation": [esc(r) if w else "" for r, w in zip(rows["reason_text"], way, strict=True)],
+    }  # fmt: skip
     ids = [f"f{f}" if w and f not in pictured else "" for f, w in zip(frames, way, strict=True)]
-    return static_table(table, ["frame"], ["way-off" if w else "" for w in way], ids)
+    return html_table(columns, ["way-off" if w else "" for w in way], ids)
 
 
-def setting_page(
-    rank_row: pd.Series, rows: pd.DataFrame, reference: pd.DataFrame, pictures: dict[str, str]
-) -> str:
+def setting_page(rank_row: pd.Series, rows: pd.DataFrame, pictures: dict[str, str]) -> str:
     """A setting's page: its TTC series against the reference (inline SVG), its metrics,
     every frame (way-off ones with their reasons) and the pictured way-off frames."""
     dataset, setting = rank_row["dataset"], rank_row["setting"]
     rows = rows.sort_values("frame")
     names = [m for m in SETTING_METRICS if m in rank_row]
     metrics = "".join(
-        static_table(pd.DataFrame([[fmt(rank_row[m]) for m in chunk]], columns=chunk))
+        html_table({m: [esc(fmt(rank_row[m]))] for m in chunk})
         for chunk in (names[i : i + 6] for i in range(0, len(names), 6))
     )
     axes = ", ".join(f"{a}: <code>{esc(rank_row[a])}</code>" for a in ev.CAMERA_AXES[:-1]
                      if a in rank_row)  # fmt: skip
-    way = rows[rows["way_off"]]
-    stems = {int(f): pictures.get(fp6.picture_stem(setting, f)) for f in way["frame"]}
+    lists = {c: rows[c].tolist() for c in (*FRAME_COLUMNS, "reason_text")}
+    records = (
+        dict(zip(lists, values, strict=True)) for values in zip(*lists.values(), strict=True)
+    )
+    way = [r for r in records if r["way_off"]]
+    stems = {int(r["frame"]): pictures.get(fp6.picture_stem(setting, r["frame"])) for r in way}
     pictured = {f for f, name in stems.items() if name}
-    sections = [_frame_section(r, stems[int(r["frame"])])
-                for r in way[way["frame"].isin(pictured)].to_dict("records")]  # fmt: skip
+    sections = [_frame_section(r, stems[int(r["frame"])]) for r in way
+                if int(r["frame"]) in pictured]  # fmt: skip
     parts = [
         f'<h1>{esc(setting)} <span class="muted">({esc(dataset)})</span></h1>',
         f'<p>{axes}. <a href="../index.html#ranking-table">back to the ranking</a></p>',
         "<h2>TTC per frame against the reference</h2>",
-        ttc_series_svg(rows, reference),
+        ttc_series_svg(lists),
         "<h2>Metrics</h2>",
         metrics,
         f'<h2 id="way-off">Frames ({len(way)} of {len(rows)} way off, highlighted)</h2>',
-        _frames_table(rows, pictured),
+        _frames_table(lists, pictured),
         *(["<h2>Pictured way-off frames</h2>", *sections] if sections else []),
     ]
     return page(f"{setting} ({dataset})", "\n".join(parts), depth=1)

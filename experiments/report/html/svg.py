@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pandas as pd
 
 from experiments.report.html.page import esc
 
@@ -71,38 +70,39 @@ def _polylines(points: list[tuple[float, float] | None], colour: str, dash: str 
     )  # fmt: skip
 
 
-def ttc_series_svg(rows: pd.DataFrame, reference: pd.DataFrame) -> str:
-    """One setting's camera TTC per frame (``rows``: frame, ttc_camera, ttc_ref_s, way_off,
-    reasons) against the reference TTC, as an inline SVG. Values above the top are drawn on
-    the top edge; invalid TTCs (NaN, inf) as open triangles on the top edge; way-off frames
-    red and linked to ``#f<frame>``."""
-    rows = rows[["frame", "ttc_camera", "ttc_ref_s", "way_off", "reasons"]].sort_values("frame")
-    ref = reference[reference["frame"].isin(rows["frame"])].sort_values("frame")
-    finite_ref = ref["ttc_ref_s"][np.isfinite(ref["ttc_ref_s"])]
-    top = 1.5 * float(finite_ref.max()) if len(finite_ref) else 60.0
+def ttc_series_svg(rows: dict[str, list]) -> str:
+    """One setting's camera TTC per frame against the reference TTC as an inline SVG;
+    ``rows``: lists ``frame``, ``ttc_camera``, ``ttc_ref_s``, ``way_off``, ``reasons`` in frame
+    order. Values above the top are drawn on the top edge; invalid TTCs (NaN, inf) as open
+    triangles on the top edge; way-off frames red and linked to ``#f<frame>``."""
+    frames = [int(f) for f in rows["frame"]]
+    ttc, ref = rows["ttc_camera"], rows["ttc_ref_s"]
+    finite_ref = [v for v in ref if np.isfinite(v) and v > 0]
+    top = 1.5 * max(finite_ref) if finite_ref else 60.0
     top = float(_nice_step(top) * math.ceil(top / _nice_step(top)))
-    x0, x1 = float(rows["frame"].min()), float(rows["frame"].max())
+    x0, x1 = float(min(frames)), float(max(frames))
 
     def point(frame: float, value: float) -> tuple[float, float] | None:
         return (_x(frame, x0, x1), _y(value, top)) if np.isfinite(value) and value > 0 else None
 
     parts = _axes(x0, x1, top)
-    parts.append(_polylines([point(f, v) for f, v in zip(ref["frame"], ref["ttc_ref_s"],
-                                                          strict=True)], REFERENCE_COLOUR, "5 3"))  # fmt: skip
-    parts.append(_polylines([point(f, v) for f, v in zip(rows["frame"], rows["ttc_camera"],
-                                                          strict=True)], SERIES_COLOUR))  # fmt: skip
-    for r in rows.itertuples():
-        valid = np.isfinite(r.ttc_camera) and r.ttc_camera > 0
-        x, y = _x(r.frame, x0, x1), _y(r.ttc_camera if valid else top, top)
-        colour = WAY_OFF_COLOUR if r.way_off else SERIES_COLOUR
-        title = (f"frame {r.frame}: {r.ttc_camera:.1f} s, reference {r.ttc_ref_s:.1f} s"
-                 + (f"; way off: {r.reasons}" if r.way_off else ""))  # fmt: skip
-        mark = (f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{4 if r.way_off else 2.5}" fill="{colour}">'
+    parts.append(_polylines([point(f, v) for f, v in zip(frames, ref, strict=True)],
+                            REFERENCE_COLOUR, "5 3"))  # fmt: skip
+    parts.append(_polylines([point(f, v) for f, v in zip(frames, ttc, strict=True)],
+                            SERIES_COLOUR))  # fmt: skip
+    for frame, value, r, way_off, reasons in zip(frames, ttc, ref, rows["way_off"],
+                                                 rows["reasons"], strict=True):  # fmt: skip
+        valid = np.isfinite(value) and value > 0
+        x, y = _x(frame, x0, x1), _y(value if valid else top, top)
+        colour = WAY_OFF_COLOUR if way_off else SERIES_COLOUR
+        title = (f"frame {frame}: {value:.1f} s, reference {r:.1f} s"
+                 + (f"; way off: {reasons}" if way_off else ""))  # fmt: skip
+        mark = (f'<circle cx="{x:.1f}" cy="{y:.1f}" r="{4 if way_off else 2.5}" fill="{colour}">'
                 if valid else
                 f'<path d="M{x - 5:.1f},{y + 8:.1f}h10l-5,-9z" fill="none" stroke="{colour}">')  # fmt: skip
         end = "</circle>" if valid else "</path>"
         mark += f"<title>{esc(title)}</title>{end}"
-        parts.append(f'<a href="#f{r.frame}">{mark}</a>' if r.way_off else mark)
+        parts.append(f'<a href="#f{frame}">{mark}</a>' if way_off else mark)
     legend = (f'<text x="{WIDTH - RIGHT}" y="12" text-anchor="end">'
               f'<tspan fill="{SERIES_COLOUR}">— camera TTC</tspan>  '
               f'<tspan fill="{REFERENCE_COLOUR}">- - reference</tspan>  '
