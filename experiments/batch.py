@@ -41,7 +41,7 @@ def run_batch(cfg: DictConfig, sweep_dir: Path) -> list[dict[str, Any]]:
     """
     plan = read_plan(sweep_dir, cfg.batch)
     members = plan["members"]
-    label = f"{cfg.batch} ({len(members)} settings)"
+    label = f"{cfg.batch}: {batch_label(members)}"
     with store.run_lock(sweep_dir, cfg.batch, label):
         todo, done, checks = [], [], store.Checks()
         for member in members:
@@ -57,6 +57,17 @@ def run_batch(cfg: DictConfig, sweep_dir: Path) -> list[dict[str, Any]]:
     outcomes = ["resumed"] * len(done) + [str(r["status"]) for r in records]
     store.mark_progress(sweep_dir, cfg.batch, outcomes)
     return done + records
+
+
+def batch_label(members: list[dict[str, Any]]) -> str:
+    """``detector=fast descriptor=orb ... (4 settings)``: the axes all members share, named
+    like a setting (the holder of the batch's lock)."""
+    shared = [
+        f"{axis}={values.pop()}"
+        for axis in AXES
+        if len(values := {str(m["setting"][axis]["name"]) for m in members}) == 1
+    ]
+    return " ".join(shared) + f" ({len(members)} settings)"
 
 
 def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> list[dict]:

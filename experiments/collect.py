@@ -15,8 +15,6 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from experiments import store
-from experiments.reference_store import runs_reference
-from ttc import evaluation as ev
 from ttc.pipeline import SETTING_AXES
 
 SETTING_COLUMNS = list(SETTING_AXES)
@@ -51,6 +49,8 @@ def ranked_sensor(runs: pd.DataFrame) -> str:
 def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame, sensor: str) -> pd.DataFrame:
     """Runs ranked on ``sensor`` by :data:`ttc.evaluation.RANKING_RULE` against ``reference``
     (rates are fractions, MiD in 10⁻⁴ of the log distance ratio, time in ms)."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+
     ranked = ev.rank_runs(ev.run_metrics(frames, reference), sensor)
     keys = [f"{sensor}_{k}" for k in ev.RANKING_KEYS]
     columns = ["rank", "run_id", *SETTING_COLUMNS, *keys, f"{sensor}_outlier_rate",
@@ -62,6 +62,8 @@ def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path |
     """The reference TTC of the sweep's recording, or None (with the reason printed) when it
     cannot be built, e.g. the data root is gone."""
     try:
+        from experiments.reference_store import runs_reference  # noqa: PLC0415 (SciPy)
+
         return runs_reference(runs[runs["status"] == "ok"], data_dir, cache_dir)
     except (OSError, ValueError) as exc:
         print(f"(no reference TTC: {exc}; ranking by the interim score instead)")

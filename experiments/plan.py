@@ -21,11 +21,12 @@ import hashlib
 import json
 import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from experiments import store
 from experiments.config import setting_config
@@ -147,6 +148,7 @@ class Plan:
     invalid: int = 0  # invalid detector x descriptor pair: recorded as skipped here
     to_compute: int = 0  # settings in the launched jobs
     batches: int = 0  # launched jobs of more than one setting
+    run_ids: list[str] = field(default_factory=list)  # of every setting of the sweep
 
     def summary(self) -> str:
         """The plan in one line."""
@@ -214,6 +216,7 @@ def make_plan(
         for start in range(0, len(group), max_batch):
             plan.jobs.append(_job(group[start : start + max_batch], sweep_dir, plan))
     plan.to_compute = len(todo)
+    plan.run_ids = list(members)
     return plan
 
 
@@ -237,6 +240,7 @@ def _drop_invalid(
     ``skipped`` records this writes (each pair checked once)."""
     verdicts: dict[tuple[str, str], str | None] = {}
     keep, skipped = [], []
+    cache_enabled, peak = bool(config.cache.enabled), peak_rss_mb()
     for member in todo:
         pair = (member["setting"]["detector"]["name"], member["setting"]["descriptor"]["name"])
         if pair not in verdicts:
@@ -248,14 +252,77 @@ def _drop_invalid(
         if verdicts[pair] is None:
             keep.append(member)
             continue
-        record = record_head(member["setting"], Path(sweep_dir).name, bool(config.cache.enabled))
+        record = record_head(member["setting"], Path(sweep_dir).name, cache_enabled)
         record.update(status="skipped", message=verdicts[pair], end=now(), wall_s=0.0,
-                      peak_rss_mb=peak_rss_mb(), n_rows=0, skipped_at="plan")  # fmt: skip
-        store.write_json_atomic(
-            record, store.run_paths(sweep_dir, record["run_id"])[1], indent=None
-        )
-        skipped.append("skipped")
+                      peak_rss_mb=peak, n_rows=0, skipped_at="plan")  # fmt: skip
+        skipped.append(record)
+
+    def write(record: dict[str, Any]) -> None:
+        path = store.run_paths(sweep_dir, record["run_id"])[1]
+        store.write_json_atomic(record, path, indent=None)
+
+    with ThreadPoolExecutor(max_workers=8) as pool:  # file system calls, in parallel
+        list(pool.map(write, skipped))
     if skipped:
-        store.mark_progress(sweep_dir, "invalid-pairs", skipped)
+        store.mark_progress(sweep_dir, "invalid-pairs", ["skipped"] * len(skipped))
     plan.invalid = len(skipped)
     return keep
+
+
+# -- the plan of a finished sweep, remembered -----------------------------------------------
+def plan_key(jobs: Sequence[Sequence[str]], config: DictConfig) -> str:
+    """A digest of everything a sweep's run ids depend on: the jobs' overrides, the sweep's
+    config (task part, as composed), every config file of its config sources (path, size,
+    mtime), the source files of the project's Python packages (the schemas and parameter
+    classes fill in defaults) and the Hydra and OmegaConf versions."""
+    from importlib import metadata  # noqa: PLC0415
+
+    from experiments.paths import PROJECT_ROOT  # noqa: PLC0415
+
+    task = {k: v for k, v in OmegaConf.to_container(config, resolve=False).items()
+            if k != "hydra"}  # fmt: skip
+    roots = [PROJECT_ROOT / "experiments", PROJECT_ROOT / "ttc", PROJECT_ROOT / "hydra_plugins"]
+    for source in config.hydra.runtime.config_sources:
+        if source.provider != "hydra" and str(source.path).startswith("file://"):
+            roots.append(Path(str(source.path)[len("file://") :]))
+    files = []
+    for root in roots:
+        for path in sorted(root.rglob("*")):
+            if path.suffix in (".py", ".yaml", ".yml") and path.is_file():
+                stat = path.stat()
+                files.append((str(path), stat.st_size, stat.st_mtime_ns))
+    versions = [metadata.version(p) for p in ("hydra-core", "omegaconf")]
+    digest = hashlib.sha256()
+    for part in (task, [list(j) for j in jobs], files, versions):
+        digest.update(json.dumps(part, sort_keys=True, default=str).encode())
+    return digest.hexdigest()[:24]
+
+
+def _index_path(sweep_dir: Path, key: str) -> Path:
+    return Path(sweep_dir) / PLAN_DIR / f"index-{key}.json"
+
+
+def remember_run_ids(sweep_dir: Path, key: str, run_ids: list[str]) -> None:
+    """Store the run ids of a planned sweep (validated: only a sweep that passed validation
+    is planned) under its :func:`plan_key`."""
+    store.write_json_atomic(run_ids, _index_path(sweep_dir, key), indent=None)
+
+
+def finished_from_memory(sweep_dir: Path, key: str, config: DictConfig) -> Plan | None:
+    """The plan of a sweep whose every setting is complete, from the run ids remembered
+    under its :func:`plan_key` (no composition, no validation: an identical sweep was
+    validated before); None when not remembered, ``force=true`` or a run is incomplete."""
+    if config.force:
+        return None
+    try:
+        run_ids = json.loads(_index_path(sweep_dir, key).read_text())
+    except (OSError, ValueError):
+        return None
+    runs_dir = Path(sweep_dir) / store.RUNS_DIR
+    recorded = set(os.listdir(runs_dir)) if runs_dir.is_dir() else set()
+    checks = store.Checks()
+    for rid in run_ids:
+        if f"{rid}.json" not in recorded or store.incomplete_reason(sweep_dir, rid, checks):
+            return None
+    store.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * len(run_ids))
+    return Plan(settings=len(run_ids), complete=len(run_ids))

@@ -163,3 +163,60 @@ def test_grand_style_sweep_merges_into_partitions(tmp_path) -> None:
     assert pq.ParquetFile(path).read_row_groups(wanted).num_rows == len(expected)
     assert json.loads((sweep / ".plan" / f"{runs['batch_id'].dropna().iloc[0]}.json")
                       .read_text())["members"]  # fmt: skip
+
+
+def test_a_setting_that_kills_its_batch_worker_costs_only_itself(kitti_dir, tmp_path) -> None:
+    """SIGKILL every process computing the ORB batch, then every process computing the ORB
+    + zscore setting alone: the batch is run again alone, then a setting at a time, and only
+    that setting is recorded as failed."""
+    args = ["descriptor=brief,orb", "keypoint_filter=none,zscore", "dataset.last=2",
+            "sweep_name=crash", "hydra.launcher.n_jobs=2"]  # fmt: skip
+    env = {**os.environ, "TTC_RESULTS_DIR": str(tmp_path / "sweeps"),
+           "TTC_CACHE_DIR": str(tmp_path / "cache")}  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "experiments.run", "-m", *args], cwd=PROJECT_ROOT, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    sweep = tmp_path / "sweeps" / "crash"
+    killed = _kill_holders(sweep, proc)
+    out, err = proc.communicate(timeout=600)
+    assert len(killed) == 3, killed  # the batch in the pool, the batch alone, the setting alone
+    assert proc.returncode == 1, err[-3000:]
+    assert "sweep incomplete: 1 setting(s) failed" in err
+    runs = pd.read_parquet(sweep / store.RUNS_FILE)
+    failed = runs[runs["status"] == "failed"]
+    pairs = list(zip(failed["descriptor"], failed["keypoint_filter"], strict=True))
+    assert pairs == [("orb", "zscore")]
+    assert "worker process died (SIGKILL(-9))" in failed["message"].iloc[0]
+    assert (runs["status"] == "ok").sum() == 3
+
+
+def _kill_holders(sweep: Path, proc: subprocess.Popen) -> list[int]:
+    """SIGKILL the holder of a run lock of the ORB batch, or of the ORB + zscore setting run
+    alone, until that setting's record exists."""
+    import signal  # noqa: PLC0415
+    import time  # noqa: PLC0415
+
+    killed: list[int] = []
+    runs_dir = sweep / store.RUNS_DIR
+    deadline = time.time() + 400
+    while proc.poll() is None and time.time() < deadline:
+        for lock in runs_dir.glob("*.lock") if runs_dir.is_dir() else []:
+            try:
+                holder = json.loads(lock.read_text() or "{}")
+            except ValueError:
+                continue
+            label = holder.get("holder", "")
+            doomed = "descriptor=orb" in label and (
+                lock.name.startswith("batch-") or "keypoint_filter=zscore" in label
+            )
+            if doomed and holder["pid"] not in killed:
+                if not lock.name.startswith("batch-") and lock.with_suffix(".json").exists():
+                    return killed
+                try:
+                    os.kill(holder["pid"], signal.SIGKILL)
+                    killed.append(holder["pid"])
+                except ProcessLookupError:
+                    pass
+        time.sleep(0.01)
+    return killed

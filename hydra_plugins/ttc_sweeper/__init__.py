@@ -160,7 +160,6 @@ class TTCSweeper(BasicSweeper):
         initial_job_idx = 0
         while not self.is_done():
             batch = self.get_job_batch()
-            self.validate_batch_is_legal(batch)
             jobs = self.plan(batch, sweep_dir)
             results = self.launcher.launch(jobs, initial_job_idx=initial_job_idx) if jobs else []
             for r in results:
@@ -171,12 +170,20 @@ class TTCSweeper(BasicSweeper):
         return returns
 
     def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> list[list[str]]:
-        """The jobs to launch for ``batch`` (:func:`experiments.plan.make_plan`), printed."""
-        from experiments.plan import make_plan  # noqa: PLC0415
+        """The jobs to launch for ``batch`` (:func:`experiments.plan.make_plan`, after
+        validation), printed. A sweep planned before with the same jobs, config, config files
+        and code (:func:`experiments.plan.plan_key`) whose every run is complete launches
+        nothing without composing a config."""
+        from experiments import plan as planning  # noqa: PLC0415
 
         assert self.config is not None
-        limit = max(1, self.max_settings_per_job)
-        plan = make_plan(batch, self._planner(), self.config, sweep_dir, limit)
+        key = planning.plan_key(batch, self.config)
+        plan = planning.finished_from_memory(sweep_dir, key, self.config)
+        if plan is None:  # validate, then plan
+            self.validate_batch_is_legal(batch)
+            limit = max(1, self.max_settings_per_job)
+            plan = planning.make_plan(batch, self._planner(), self.config, sweep_dir, limit)
+            planning.remember_run_ids(sweep_dir, key, plan.run_ids)
         print(plan.summary(), flush=True)
         return plan.jobs
 
