@@ -1,4 +1,5 @@
-"""The FP.5 (lidar) and FP.6 (camera) reports of one or more sweeps: markdown + CSV + PNG.
+"""The FP.5 (lidar) and FP.6 (camera) reports of one or more sweeps: markdown + CSV + pictures,
+and an HTML report.
 
 Usage::
 
@@ -13,7 +14,10 @@ Writes ``metrics.parquet`` beside each sweep (one row per run) and, under ``--ou
   ``fp5_lidar_ttc.png`` and ``fp5_pictures/`` (top views of flagged frames) (:mod:`.fp5`);
 * ``fp6_camera.md``, ``fp6_camera_ttc.csv`` (one row per frame × camera setting),
   ``fp6_ranking.csv`` (metrics + bootstrap rank interval per setting), the heatmap, series and
-  Pareto plots and ``fp6_pictures/`` (keypoint matches of the worst frames) (:mod:`.fp6`).
+  Pareto plots and ``fp6_pictures/`` (readable WebP pictures of the worst frames' lead-box
+  matches) (:mod:`.fp6`);
+* ``html/``: the same as linked HTML pages that open from disk, the ranking sortable and
+  filterable, a page per setting (:mod:`.html`).
 
 The judging (reference, metrics, ranking, the FP.5 / FP.6 diagnosis rules) is
 :mod:`ttc.evaluation`; the modules here load sweeps (:mod:`.load`), recompute the few frame
