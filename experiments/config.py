@@ -21,26 +21,31 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 from experiments import paths
 from ttc.box_matching import BoxMatchingParams
 from ttc.camera_ttc import CameraTTCParams
-from ttc.descriptors import DESCRIPTORS
+from ttc.descriptors import DESCRIPTORS, NO_DESCRIPTOR
 from ttc.frames import PROJECTIONS, recording_frames
+from ttc.fusion import FusionParams
 from ttc.keypoint_filter import KeypointFilterParams
 from ttc.keypoints import DETECTORS
 from ttc.lidar import LaneCropParams
 from ttc.lidar_ttc import LidarTTCParams
-from ttc.matching import MatcherParams, SelectorParams
+from ttc.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
 from ttc.objects import ObjectDetectorParams
 from ttc.pipeline import AXES, FrameRange, Settings
 
 #: Config groups whose options each pick one parameter class by name.
-NAMED_GROUPS: dict[str, dict[str, type]] = {"detector": DETECTORS, "descriptor": DESCRIPTORS}
+NAMED_GROUPS: dict[str, dict[str, type]] = {
+    "detector": DETECTORS,
+    "descriptor": DESCRIPTORS,
+    "matcher": MATCHER_PARAMS,
+}
 #: Config groups with one parameter class for all their options.
 SINGLE_CLASS_GROUPS: dict[str, type] = {
-    "matcher": MatcherParams,
     "selector": SelectorParams,
     "box_matching": BoxMatchingParams,
     "lidar_ttc": LidarTTCParams,
     "keypoint_filter": KeypointFilterParams,
     "camera_ttc": CameraTTCParams,
+    "fusion": FusionParams,
     "objects": ObjectDetectorParams,
 }
 
@@ -95,6 +100,7 @@ class RunConfig:
     lidar_ttc: Any = MISSING
     keypoint_filter: Any = MISSING
     camera_ttc: Any = MISSING
+    fusion: Any = MISSING
     objects: Any = MISSING
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
@@ -143,10 +149,21 @@ def _to_object(node: DictConfig, schema: type) -> Any:
 
 def settings_from_config(cfg: DictConfig) -> Settings:
     """The core's :class:`Settings` for a composed config (raises ValueError on bad values)."""
+    matcher = _to_object(cfg.matcher, MATCHER_PARAMS[cfg.matcher.name])
+    tracking = matcher.name in TRACKERS  # KLT uses no descriptor and selects nothing
+    objects = {
+        g: NO_SELECTOR if tracking and g == "selector" else _to_object(cfg[g], schema)
+        for g, schema in SINGLE_CLASS_GROUPS.items()
+    }
+    if tracking:
+        descriptor = NO_DESCRIPTOR
+    else:
+        descriptor = _to_object(cfg.descriptor, DESCRIPTORS[cfg.descriptor.name])
     return Settings(
         detector=_to_object(cfg.detector, DETECTORS[cfg.detector.name]),
-        descriptor=_to_object(cfg.descriptor, DESCRIPTORS[cfg.descriptor.name]),
-        **{g: _to_object(cfg[g], schema) for g, schema in SINGLE_CLASS_GROUPS.items()},
+        descriptor=descriptor,
+        matcher=matcher,
+        **objects,
         lane=_to_object(cfg.lidar.crop, LaneCropParams),
         lidar_shrink=float(cfg.lidar.shrink),
     )
@@ -174,12 +191,51 @@ def setting_config(cfg: DictConfig) -> dict[str, Any]:
     """The part of the config that determines the numbers (no paths, no launcher)."""
     setting = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in (*AXES, "lidar")}
     setting["dataset"] = {k: v for k, v in setting["dataset"].items() if k != "root"}
+    if setting["matcher"]["name"] in TRACKERS:  # no descriptor, no selection: one run id
+        setting["descriptor"] = {"name": NO_DESCRIPTOR.name}
+        setting["selector"] = {"name": NO_SELECTOR.name}
     return setting
 
 
+def axis_values(setting: dict[str, Any]) -> dict[str, str]:
+    """The value recorded on every axis of a :func:`setting_config`: the option's name
+    (``none`` for the descriptor and selector of ``matcher=klt``), the detector's with
+    ``+subpixel`` when its keypoints are refined, so reports tell the two apart."""
+    values = {axis: str(setting[axis]["name"]) for axis in AXES}
+    if setting["detector"].get("subpixel"):
+        values["detector"] += SUBPIXEL_SUFFIX
+    return values
+
+
+#: Appended to the recorded detector name of a setting with ``detector.subpixel=true``.
+SUBPIXEL_SUFFIX = "+subpixel"
+
+#: Options that leave a setting's numbers as they were before the option existed, at their
+#: "off" value: left out of the run id, so the ids of settings stored before stay the same.
+NEUTRAL_OPTIONS: tuple[tuple[str, str, Any], ...] = (
+    ("detector", "subpixel", False),
+    ("fusion", "name", "none"),
+)
+
+
+def run_identity(setting: dict[str, Any]) -> dict[str, Any]:
+    """:func:`setting_config` without the :data:`NEUTRAL_OPTIONS` at their off value (a whole
+    axis goes when its ``name`` is off). Untouched values are the same objects."""
+    out = dict(setting)
+    for axis, key, off in NEUTRAL_OPTIONS:
+        value = out.get(axis)
+        if isinstance(value, dict) and key in value and value[key] == off:
+            if key == "name":
+                del out[axis]
+            else:
+                out[axis] = {k: v for k, v in value.items() if k != key}
+    return out
+
+
 def setting_hash(setting: dict[str, Any]) -> str:
-    """The run id of a :func:`setting_config` (16 hex digits of its canonical JSON's SHA-256)."""
-    text = json.dumps(setting, sort_keys=True, separators=(",", ":"))
+    """The run id of a :func:`setting_config` (16 hex digits of the SHA-256 of its
+    :func:`run_identity`'s canonical JSON)."""
+    text = json.dumps(run_identity(setting), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

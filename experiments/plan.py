@@ -29,9 +29,10 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import store
-from experiments.config import setting_config
+from experiments.config import run_identity, setting_config
 from experiments.records import now, peak_rss_mb, record_head
 from ttc.descriptors import check_pair
+from ttc.matching import TRACKERS
 
 PLAN_DIR = ".plan"
 #: Axes whose values share the cached stages: settings differing only in these form a batch.
@@ -111,7 +112,9 @@ class SettingPlanner:
 
     def run_id(self, setting: dict[str, Any]) -> str:
         """:func:`setting_hash` of a setting this planner made: the canonical JSON is
-        assembled from the memorised JSON of its top-level values (they are shared objects)."""
+        assembled from the memorised JSON of its top-level values (they are shared objects),
+        without the options at their off value (:func:`run_identity`)."""
+        setting = run_identity(setting)
         parts = []
         for key in sorted(setting):
             value = setting[key]
@@ -259,6 +262,9 @@ def _drop_invalid(
     cache_enabled, peak = bool(config.cache.enabled), peak_rss_mb()
     for member in todo:
         pair = (member["setting"]["detector"]["name"], member["setting"]["descriptor"]["name"])
+        if member["setting"]["matcher"]["name"] in TRACKERS:  # KLT: no descriptor, no pair
+            keep.append(member)
+            continue
         if pair not in verdicts:
             try:
                 check_pair(*pair)

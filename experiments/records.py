@@ -12,7 +12,7 @@ from typing import Any
 
 import pandas as pd
 
-from experiments.config import setting_hash
+from experiments.config import axis_values, setting_hash
 from experiments.provenance import code_version, machine, package_versions
 from ttc.pipeline import AXES
 
@@ -28,7 +28,7 @@ def record_head(setting: dict[str, Any], sweep_id: str, cache_enabled: bool) -> 
     return {
         "run_id": setting_hash(setting),
         "sweep_id": sweep_id,
-        **{axis: str(setting[axis]["name"]) for axis in AXES},
+        **axis_values(setting),
         "first_frame": int(dataset["first"]),
         "last_frame": int(dataset["last"]),
         "step": int(dataset["step"]),

@@ -112,6 +112,7 @@ def test_a_recomputed_setting_of_a_batch_keeps_the_others(two_ways, tmp_path) ->
     sweep = tmp / "batched" / "grid"
     records = [r for r in store.list_records(sweep) if r["status"] == "ok"]
     victim = records[0]
+    sibling = next(r for r in records[1:] if r.get("rows_file") == victim["rows_file"])
     store.run_paths(sweep, victim["run_id"])[1].write_text("{not json")
     res = run(GRID, tmp / "batched", tmp / "cache")
     assert res.returncode == 0, res.stderr[-3000:]
@@ -121,7 +122,7 @@ def test_a_recomputed_setting_of_a_batch_keeps_the_others(two_ways, tmp_path) ->
     assert redone["status"] == "ok" and "rows_file" not in redone  # computed alone
     frames, runs = store.load_sweep(sweep)
     assert (runs["status"] != "failed").all() and frames["run_id"].nunique() == 24
-    old = store.read_record(sweep, records[1]["run_id"])
+    old = store.read_record(sweep, sibling["run_id"])  # a batch-mate of the victim
     assert old["rows_file"] == victim["rows_file"] and store.is_complete(sweep, old["run_id"])
 
 

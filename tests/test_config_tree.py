@@ -59,6 +59,10 @@ def test_every_experiment_composes_as_a_multirun(experiment: str) -> None:
     cfg = composed([f"+experiment={experiment}"])
     assert str(cfg.hydra.mode) == "RunMode.MULTIRUN"
     params = cfg.hydra.sweeper.params
-    assert params and set(params) <= set(AXES) | {"lidar.shrink", "dataset.step"}
+    assert params and set(params) <= set(AXES) | {
+        "lidar.shrink",
+        "dataset.step",
+        "detector.subpixel",
+    }
     assert experiment in cfg.sweep_name
     settings_from_config(cfg)

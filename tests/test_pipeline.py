@@ -16,11 +16,9 @@ from ttc.descriptors import DESCRIPTORS, InvalidCombinationError
 from ttc.frames import frame_files
 from ttc.keypoints import DETECTORS
 from ttc.lidar_ttc import LidarTTCParams
-from ttc.pipeline import FrameRange, Settings, run_setting
+from ttc.pipeline import AXES, FrameRange, Settings, run_setting
 
-RUN_COLUMNS = {"run_id", "sweep_id", "git_commit", "detector", "descriptor", "matcher",
-               "selector", "box_matching", "lidar_ttc", "keypoint_filter", "camera_ttc",
-               "objects", "dataset"}  # fmt: skip
+RUN_COLUMNS = {"run_id", "sweep_id", "git_commit", *AXES}
 
 
 def check_frame_columns(frames: pd.DataFrame, core_only: bool = False) -> None:

@@ -36,7 +36,6 @@ from ttc import reasons
 from ttc.box_matching import count_shared_matches, match_boxes
 from ttc.cache import Lookup, StageCache
 from ttc.camera_ttc import camera_ttc
-from ttc.descriptors import check_pair
 from ttc.frames import (
     FrameDataError,
     check_frame_range,
@@ -49,7 +48,7 @@ from ttc.keypoint_filter import filter_box_matches
 from ttc.keypoints import X, Y
 from ttc.lidar import assign_points_to_boxes, lead_box_of, project_to_image
 from ttc.lidar_ttc import lidar_ttc
-from ttc.matching import select_matches
+from ttc.matching import current_keypoints, pair_matches
 from ttc.pipeline import (
     CACHED_STAGES,
     EMPTY_BOX_RESULT,
@@ -57,6 +56,7 @@ from ttc.pipeline import (
     Settings,
     _error_row,
     _timed,
+    check_setting,
     finish_rows,
     stream,
 )
@@ -119,7 +119,7 @@ def run_settings(
     valid = []
     for i, s in enumerate(settings):
         try:
-            check_pair(s.detector.name, s.descriptor.name)
+            check_setting(s)
             valid.append(i)
         except Exception as exc:
             failed[i] = exc
@@ -239,7 +239,7 @@ class _SharedPair:
         self.obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
         self.lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
         desc = {i: per_frame["descriptors"][i].arrays for i in (prev, curr)}
-        self.kp_curr = desc[curr]["keypoints"]
+        self.kp_curr = current_keypoints(desc[curr]["keypoints"], match.arrays)  # KLT: tracked
         self.xy_prev = desc[prev]["keypoints"][:, [X, Y]]
         self.xy_curr = self.kp_curr[:, [X, Y]]
         self.memo: dict[str, dict] = {
@@ -252,7 +252,7 @@ class _SharedPair:
         return _memo(
             self.memo["sel"],
             k.selector,
-            lambda: select_matches(arrays["idx"], arrays["dist"], s.selector),
+            lambda: pair_matches(arrays, s.selector),
         )
 
     def _association(self, s: Settings) -> tuple[Any, dict, int]:

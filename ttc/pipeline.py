@@ -37,11 +37,18 @@ from ttc.frames import (
     read_image,
     timestamps_file,
 )
+from ttc.fusion import FusionParams, fuse_rows
 from ttc.keypoint_filter import KeypointFilterParams, filter_box_matches
 from ttc.keypoints import X, Y
 from ttc.lidar import LaneCropParams, assign_points_to_boxes, lead_box_of, project_to_image
 from ttc.lidar_ttc import LidarTTCParams, lidar_ttc
-from ttc.matching import MatcherParams, SelectorParams, select_matches
+from ttc.matching import (
+    MatcherParams,
+    SelectorParams,
+    current_keypoints,
+    pair_matches,
+    uses_descriptors,
+)
 from ttc.objects import ObjectDetectorParams
 from ttc.stages import (  # noqa: F401 (re-exported: the stage table and inputs of a run)
     CACHED_STAGES,
@@ -70,6 +77,7 @@ class Settings:
         default_factory=KeypointFilterParams, metadata=AXIS
     )
     camera_ttc: CameraTTCParams = field(default_factory=CameraTTCParams, metadata=AXIS)
+    fusion: FusionParams = field(default_factory=FusionParams, metadata=AXIS)
     objects: ObjectDetectorParams = field(default_factory=ObjectDetectorParams, metadata=AXIS)
     lane: LaneCropParams = field(default_factory=LaneCropParams)
     lidar_shrink: float = 0.10
@@ -166,7 +174,7 @@ def run_setting(
     Frames are processed in chunks of :data:`CHUNK_FRAMES`, so memory does not grow with the
     length of the range.
     """
-    check_pair(settings.detector.name, settings.descriptor.name)
+    check_setting(settings)
     indices = frames.indices
     if len(indices) < 2:
         raise ValueError(f"need at least two frames, got {indices}")
@@ -193,9 +201,17 @@ def run_setting(
 
 def finish_rows(settings: Settings, rows: pd.DataFrame) -> pd.DataFrame:
     """A setting's rows once all its frame pairs are done: the place for work over a whole
-    run (e.g. fused TTC over the lead rows). :func:`run_setting` and the batched execution
-    (:func:`ttc.batch.run_settings`) both end with it, so both give the same rows."""
-    return rows
+    run: the fused TTC over the lead rows (:func:`ttc.fusion.fuse_rows`). :func:`run_setting`
+    and the batched execution (:func:`ttc.batch.run_settings`) both end with it, so both give
+    the same rows."""
+    return fuse_rows(rows, settings.fusion)
+
+
+def check_setting(settings: Settings) -> None:
+    """Raise :class:`ttc.descriptors.InvalidCombinationError` for an invalid (or unavailable)
+    detector × descriptor pair; a tracking matcher (KLT) uses no descriptor, so never."""
+    if uses_descriptors(settings.matcher):
+        check_pair(settings.detector.name, settings.descriptor.name)
 
 
 @dataclass
@@ -226,7 +242,7 @@ def pair_detail(
     settings: Settings, frames: FrameRange, prev: int, curr: int, cache: StageCache | None = None
 ) -> PairDetail:
     """Run one frame pair and keep every intermediate array (for pictures)."""
-    check_pair(settings.detector.name, settings.descriptor.name)
+    check_setting(settings)
     cache = cache if cache is not None else StageCache(None)
     calib = load_calibration(frames.sequence_dir, frames.projection)
     pair = dataclasses.replace(frames, first=prev, last=curr, step=curr - prev)
@@ -244,7 +260,10 @@ def pair_detail(
         curr=curr,
         images={i: read_image(frame_files(frames.sequence_dir, i).image) for i in (prev, curr)},
         objects={i: per_frame["objects"][i].arrays for i in (prev, curr)},
-        keypoints={i: per_frame["descriptors"][i].arrays["keypoints"] for i in (prev, curr)},
+        keypoints={
+            prev: per_frame["descriptors"][prev].arrays["keypoints"],
+            curr: detail["keypoints_curr"],
+        },  # fmt: skip
         matches=detail["matches"],
         box_matches=detail["box_matches"],
         lane_points={i: per_frame["lidar"][i].arrays["points"] for i in (prev, curr)},
@@ -253,7 +272,7 @@ def pair_detail(
         lead_box=detail["lead_box"],
         kept=detail.get("kept", empty),
         removed=detail.get("removed", empty),
-        rows=pd.DataFrame.from_records(rows),
+        rows=finish_rows(settings, pd.DataFrame.from_records(rows)),
     )
 
 
@@ -276,12 +295,11 @@ def _pair_rows(
     obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
     lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
     desc = {i: per_frame["descriptors"][i].arrays for i in (prev, curr)}
-    kp_prev, kp_curr = desc[prev]["keypoints"], desc[curr]["keypoints"]
+    kp_prev = desc[prev]["keypoints"]
+    kp_curr = current_keypoints(desc[curr]["keypoints"], match_lookup.arrays)  # KLT: tracked
     xy_prev, xy_curr = kp_prev[:, [X, Y]], kp_curr[:, [X, Y]]
 
-    selected, ms_select = _timed(
-        lambda: select_matches(match_lookup.arrays["idx"], match_lookup.arrays["dist"], s.selector)
-    )
+    selected, ms_select = _timed(lambda: pair_matches(match_lookup.arrays, s.selector))
 
     # FP.1 box matching
     def fp1():
@@ -339,7 +357,7 @@ def _pair_rows(
 
     if detail is not None:
         detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
-                      lead_box=lead_box)  # fmt: skip
+                      lead_box=lead_box, keypoints_curr=kp_curr)  # fmt: skip
     pair = _PairData(s, dt, prev, curr, obj, lane, owners, xy_prev, xy_curr, selected)
     rows = []
     for prev_box, curr_box in box_pairs:

@@ -10,10 +10,13 @@ lidar         scan file, lane crop                                         lane 
 keypoints     image file, detector params                                  (N, 7) array
 descriptors   keypoints key, descriptor params                             kept kps, desc
 matches       both descriptors keys, matcher params                        k=2 candidates
+matches (klt) previous keypoints key, current image file, KLT params      tracks
 ============  ==========================================================  ==============
 
 A file is named by its identity (resolved path, size, mtime). NN and kNN selection share the
-k=2 candidates, so the selector is not part of the matches key. Bump a stage's number in
+k=2 candidates, so the selector is not part of the matches key. Options at their "off" value
+(``detector.subpixel=false``) are left out of the keys (:func:`stage_params`), so entries made
+before the option existed stay valid; a ``custom`` stage's key holds the hash of its code. Bump a stage's number in
 ``STAGE_VERSIONS`` when its code changes results: every key built on it changes too.
 """
 
@@ -28,7 +31,7 @@ import cv2
 import numpy as np
 
 from ttc.cache import Lookup, StageCache, Task, cache_key
-from ttc.descriptors import describe_keypoints, is_binary
+from ttc.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_binary
 from ttc.frames import (
     CAM_TO_CAM,
     TIMESTAMP_FILES,
@@ -40,9 +43,11 @@ from ttc.frames import (
     read_lidar_scan,
 )
 from ttc.keypoints import detect_keypoints
+from ttc.klt import track_keypoints
 from ttc.lidar import crop_to_lane
-from ttc.matching import knn_candidates
+from ttc.matching import knn_candidates, tracks_to_arrays, uses_descriptors
 from ttc.objects import detect_objects, model_identity
+from ttc.plugins import USER, code_identity
 
 if TYPE_CHECKING:
     from ttc.pipeline import FrameRange, Settings
@@ -53,6 +58,18 @@ CACHED_STAGES = tuple(STAGE_VERSIONS)
 
 def _params(obj: Any) -> dict[str, Any]:
     return dataclasses.asdict(obj)
+
+
+def stage_params(params: Any) -> dict[str, Any]:
+    """The parameters of a detector, descriptor or matcher as they enter a cache key:
+    ``subpixel`` only when on (keys made before the option existed stay valid), and for a
+    ``custom`` stage the hash of the user's code (editing the function recomputes it)."""
+    out = _params(params)
+    if out.get("subpixel") is False:
+        del out["subpixel"]
+    if out.get("name") == USER:
+        out["code"] = code_identity(out["target"])
+    return out
 
 
 #: Library versions in every cache key: a new OpenCV or numpy may change any stage's output.
@@ -72,7 +89,8 @@ class FrameStages:
 
     def __init__(self, settings: Settings, frames: FrameRange, cache: StageCache) -> None:
         self.settings, self.frames, self.cache = settings, frames, cache
-        self.binary = is_binary(settings.descriptor.name)
+        self.tracking = not uses_descriptors(settings.matcher)
+        self.binary = not self.tracking and descriptor_is_binary(settings.descriptor)
         self._tasks: dict[tuple, Task] = {}
         self._images: dict[int, np.ndarray] = {}
         self._grays: dict[int, np.ndarray] = {}
@@ -136,7 +154,7 @@ class FrameStages:
         def compute() -> dict:
             return {"keypoints": detect_keypoints(self._gray(index), params)}
 
-        parts = lambda: (self._image_id(index), _params(params))  # noqa: E731
+        parts = lambda: (self._image_id(index), stage_params(params))  # noqa: E731
         return self._task("keypoints", (index,), parts, compute)
 
     def descriptors(self, index: int) -> Task:
@@ -145,13 +163,18 @@ class FrameStages:
 
         def compute() -> dict:
             keypoints = self.cache.get(upstream).arrays["keypoints"]
+            if self.tracking:  # KLT: every detected keypoint, no descriptor
+                return {"keypoints": keypoints, "descriptors": np.empty((len(keypoints), 0))}
             kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
             return {"keypoints": kept, "descriptors": descriptors}
 
-        parts = lambda: (upstream.key, _params(desc))  # noqa: E731
+        desc_key = _params(NO_DESCRIPTOR) if self.tracking else stage_params(desc)
+        parts = lambda: (upstream.key, desc_key)  # noqa: E731
         return self._task("descriptors", (index,), parts, compute)
 
     def matches(self, prev: int, curr: int) -> Task:
+        if self.tracking:
+            return self.tracks(prev, curr)
         s = self.settings
         up_prev, up_curr = self.descriptors(prev), self.descriptors(curr)
 
@@ -161,7 +184,22 @@ class FrameStages:
             idx, dist = knn_candidates(d_prev, d_curr, self.binary, s.matcher)
             return {"idx": idx, "dist": dist}
 
-        parts = lambda: (up_prev.key, up_curr.key, _params(s.matcher))  # noqa: E731
+        parts = lambda: (up_prev.key, up_curr.key, stage_params(s.matcher))  # noqa: E731
+        return self._task("matches", (prev, curr), parts, compute)
+
+    def tracks(self, prev: int, curr: int) -> Task:
+        """KLT: the previous frame's keypoints tracked into the current frame (the matches
+        stage of ``matcher=klt``)."""
+        klt = self.settings.matcher
+        upstream = self.keypoints(prev)
+
+        def compute() -> dict:
+            keypoints = self.cache.get(upstream).arrays["keypoints"]
+            return tracks_to_arrays(
+                track_keypoints(self._gray(prev), self._gray(curr), keypoints, klt)
+            )
+
+        parts = lambda: (upstream.key, self._image_id(curr), _params(klt))  # noqa: E731
         return self._task("matches", (prev, curr), parts, compute)
 
 
