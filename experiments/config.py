@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
@@ -216,6 +217,27 @@ NEUTRAL_OPTIONS: tuple[tuple[str, str, Any], ...] = (
     ("detector", "subpixel", False),
     ("fusion", "name", "none"),
 )
+
+
+def with_neutral_options(setting: dict[str, Any]) -> dict[str, Any]:
+    """A stored :func:`setting_config` with every :data:`NEUTRAL_OPTIONS` axis it lacks (a run
+    recorded before that axis existed) at its off value, so it composes into
+    :func:`settings_from_config` like a new one."""
+    out = dict(setting)
+    for axis, key, off in NEUTRAL_OPTIONS:
+        if key == "name" and axis not in out:
+            out[axis] = {"name": off}
+    return out
+
+
+def with_neutral_axes(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` (frames or run records) with the column of every :data:`NEUTRAL_OPTIONS` axis,
+    its off value where a row was recorded before the axis existed."""
+    out = table.copy()
+    for axis, key, off in NEUTRAL_OPTIONS:
+        if key == "name" and not out.empty:
+            out[axis] = out[axis].fillna(off) if axis in out else off
+    return out
 
 
 def run_identity(setting: dict[str, Any]) -> dict[str, Any]:

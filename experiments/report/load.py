@@ -14,7 +14,12 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import store
-from experiments.config import frame_range_from_config, settings_from_config
+from experiments.config import (
+    frame_range_from_config,
+    settings_from_config,
+    with_neutral_axes,
+    with_neutral_options,
+)
 from experiments.paths import PROJECT_ROOT, default_cache_dir, default_data_root
 from experiments.reference_store import sequence_of, sequence_reference
 from ttc import evaluation as ev
@@ -74,6 +79,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         overrides[d.name] = sweep_overrides(d)
     frames = pd.concat(frame_parts, ignore_index=True) if frame_parts else pd.DataFrame()
     runs = pd.concat(run_parts, ignore_index=True) if run_parts else pd.DataFrame()
+    frames, runs = with_neutral_axes(frames), with_neutral_axes(runs)  # axes added since
     if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
         frames = ev.with_compute_times(frames)
     return SweepData(dirs, frames, runs, overrides, repeated)
@@ -81,7 +87,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
 
 def run_config(config_json: str, root: Path) -> DictConfig:
     """A run's stored setting config (runs.parquet ``config``) with the data root put back."""
-    cfg = OmegaConf.create(json.loads(config_json))
+    cfg = OmegaConf.create(with_neutral_options(json.loads(config_json)))
     cfg.dataset.root = str(root)
     return cfg
 
