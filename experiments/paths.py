@@ -12,9 +12,13 @@ from pathlib import Path
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
+#: The shared data folder beside the project (the developers' and CI's copy of the frames).
+SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
+#: Where the main command downloads the frames on a machine without them.
+PROJECT_DATA = PROJECT_ROOT / "data"
 #: Environment variable and default of each folder (relative defaults are under the project).
 LOCATIONS: dict[str, tuple[str, Path]] = {
-    "data": ("TTC_DATA_DIR", PROJECT_ROOT.parent / "shared" / "data"),
+    "data": ("TTC_DATA_DIR", SHARED_DATA),
     "cache": ("TTC_CACHE_DIR", PROJECT_ROOT / "cache"),
     "results": ("TTC_RESULTS_DIR", PROJECT_ROOT / "sweeps"),
 }
@@ -31,11 +35,16 @@ def default(kind: str) -> Path:
     when set, else the project's default."""
     variable, fallback = LOCATIONS[kind]
     value = os.environ.get(variable)
-    return resolve(value) if value else fallback
+    if value:
+        return resolve(value)
+    if kind == "data":  # ../shared/data, else (a fresh machine) where the frames get downloaded
+        return SHARED_DATA if SHARED_DATA.is_dir() else PROJECT_DATA
+    return fallback
 
 
 def default_data_root() -> Path:
-    """``$TTC_DATA_DIR``, else ``../shared/data`` beside the project root."""
+    """``$TTC_DATA_DIR``, else ``../shared/data`` beside the project root when it exists,
+    else ``./data`` in the project (where the main command downloads the frames)."""
     return default("data")
 
 

@@ -45,6 +45,7 @@ from experiments.config import (
     setting_hash,
     settings_from_config,
 )
+from experiments.first_run import ensure_data
 from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
 from ttc.cache import StageCache
 from ttc.descriptors import InvalidCombinationError
@@ -193,4 +194,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv[1:] = ensure_data(sys.argv[1:])  # data on first run (experiments/first_run.py)
     main()
