@@ -267,8 +267,8 @@ class TTCLauncher(JoblibLauncher):
         joblib_cfg["backend"] = "loky"
         process_joblib_cfg(joblib_cfg)
         log.info(f"Launching {len(job_overrides)} jobs, sweep output dir: {sweep_dir}")
-        for idx, overrides in enumerate(job_overrides):
-            log.info(f"\t#{initial_job_idx + idx} : {' '.join(filter_overrides(overrides))}")
+        for idx, overrides in enumerate(job_overrides):  # hydra.verbose=true shows them
+            log.debug(f"\t#{initial_job_idx + idx} : {' '.join(filter_overrides(overrides))}")
         payload = cloudpickle.dumps(
             (self.hydra_context, self.config, self.task_function, Singleton.get_state())
         )
