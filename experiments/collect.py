@@ -37,13 +37,18 @@ def interim_scores(frames: pd.DataFrame) -> pd.DataFrame:
 
 #: Axes that change only the lidar TTC: a sweep varying nothing else is ranked on the lidar.
 LIDAR_ONLY_AXES = ("lidar_ttc",)
+#: The axis that changes only the fused TTC.
+FUSION_AXIS = "fusion"
 
 
 def ranked_sensor(runs: pd.DataFrame) -> str:
-    """The sensor a sweep's summary ranks on: ``lidar`` when only lidar-only axes vary
-    (e.g. ``fp5_lidar``), else ``camera``."""
-    varying = [a for a in SETTING_AXES if a in runs and runs[a].nunique(dropna=False) > 1]
-    return "lidar" if varying and set(varying) <= set(LIDAR_ONLY_AXES) else "camera"
+    """The sensor a sweep's summary ranks on: ``fused`` when the fusion varies along with
+    lidar-only axes at most (e.g. ``+experiment=fusion``), ``lidar`` when only lidar-only
+    axes vary (e.g. ``fp5_lidar``), else ``camera``."""
+    varying = {a for a in SETTING_AXES if a in runs and runs[a].nunique(dropna=False) > 1}
+    if FUSION_AXIS in varying and varying <= {FUSION_AXIS, *LIDAR_ONLY_AXES}:
+        return "fused"
+    return "lidar" if varying and varying <= set(LIDAR_ONLY_AXES) else "camera"
 
 
 def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame, sensor: str) -> pd.DataFrame:

@@ -22,3 +22,11 @@ def test_camera_axes_rank_on_the_camera() -> None:
     both = runs_varying(detector=["fast", "orb"], lidar_ttc=["median", "closest"])
     assert ranked_sensor(both) == "camera"
     assert ranked_sensor(runs_varying(detector=["fast"])) == "camera"  # one setting
+
+
+def test_a_fusion_sweep_ranks_on_the_fused_ttc() -> None:
+    runs = runs_varying(fusion=["none", "kalman_cv", "kalman_ca"], lidar_ttc=["median"])
+    assert ranked_sensor(runs) == "fused"
+    assert ranked_sensor(runs_varying(fusion=["none", "kalman_cv"], detector=["fast", "orb"])) == (
+        "camera"
+    )

@@ -258,3 +258,22 @@ def test_compare_runs_flags_better_worse_and_unchanged_settings():
         "sift": "worse",
         "fast": "same",
     }
+
+
+def test_the_fused_estimate_is_judged_like_the_other_sensors():
+    table = hand_table()
+    fused = {"A": [1.01, 1.01, 1.0125, 1.0, 1.0], "B": [NAN, 1.02, 1.0125, 1.0, 1.001]}
+    table["fused_ratio"] = NAN
+    for run, ratios in fused.items():
+        lead = (table["run_id"] == run) & table["is_lead"]
+        table.loc[lead, "fused_ratio"] = ratios
+    table["ttc_fused"] = table["fused_ratio"].map(ttc_of)
+    m = ev.run_metrics(table, REFERENCE).set_index("run_id")
+    assert m.loc["A", "fused_mid_median"] == pytest.approx(0.0, abs=1e-9)
+    assert m.loc["A", "fused_invalid_rate"] == 0.0 and m.loc["C", "fused_invalid_rate"] == 1.0
+    assert m.loc["B", "fused_mid_median"] == pytest.approx(mid(1.001, 1.0) / 2)
+    assert m.loc["B", "fused_outlier_rate"] == 1.0  # frame 1 invalid, frame 2 50 % off
+    ranked = ev.rank_runs(m.reset_index(), "fused")
+    assert ranked["run_id"].tolist() == ["A", "B", "C"]
+    # sweeps made before the fusion axis have no fused columns: nothing is made up
+    assert "fused_mid_median" not in ev.run_metrics(hand_table(), REFERENCE)

@@ -19,8 +19,8 @@ from ttc import reasons
 from ttc.evaluation import attach_reference, frame_errors, run_metrics
 from ttc.pipeline import AXES
 
-#: Axes of a camera setting: everything but the lidar estimator.
-CAMERA_AXES: tuple[str, ...] = tuple(a for a in AXES if a != "lidar_ttc")
+#: Axes of a camera setting: everything but the lidar estimator and the fusion.
+CAMERA_AXES: tuple[str, ...] = tuple(a for a in AXES if a not in ("lidar_ttc", "fusion"))
 
 
 def fmt(values: pd.Series, spec: str) -> pd.Series:
@@ -104,8 +104,10 @@ def setting_labels(table: pd.DataFrame, axes: Iterable[str]) -> pd.Series:
 
 
 def setting_key(table: pd.DataFrame, axes: Iterable[str]) -> pd.Series:
-    """One string per row identifying its values of ``axes`` ('|'-joined)."""
-    return functools.reduce(lambda a, b: a + "|" + b, [table[a].astype(str) for a in axes])
+    """One string per row identifying its values of ``axes`` ('|'-joined; axes the table
+    lacks, e.g. one added after its runs were recorded, are left out)."""
+    present = [table[a].astype(str) for a in axes if a in table]
+    return functools.reduce(lambda a, b: a + "|" + b, present)
 
 
 def judged_rows(frames: pd.DataFrame, reference: pd.DataFrame, run_ids) -> pd.DataFrame:

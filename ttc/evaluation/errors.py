@@ -39,7 +39,9 @@ import pandas as pd
 
 from ttc.evaluation.reference import MAX_REF_REL_SD, MID_SCALE, MIN_CLOSING_SPEED_MPS
 
-SENSORS: tuple[str, ...] = ("camera", "lidar")
+#: The estimates judged: camera (FP.4), lidar (FP.2) and their Kalman fusion (FP.7,
+#: ``ttc_fused`` / ``fused_ratio``, present in sweeps made since the ``fusion`` axis exists).
+SENSORS: tuple[str, ...] = ("camera", "lidar", "fused")
 #: Relative error above which a TTC is an outlier.
 OUTLIER_REL = 0.3
 #: A finite TTC below this (s) where the reference says "no collision course" is a false
@@ -72,6 +74,11 @@ CACHED_STAGE_INPUTS: dict[str, tuple[str, str, tuple[str, ...]]] = {
 }
 
 
+def sensors_of(table: pd.DataFrame) -> tuple[str, ...]:
+    """The :data:`SENSORS` whose TTC column ``ttc_{s}`` the table has."""
+    return tuple(s for s in SENSORS if f"ttc_{s}" in table)
+
+
 def stage_time_columns(frames: pd.DataFrame) -> list[str]:
     """The per-stage time columns (``ms_*``, ms) of ``frames``: not the derived totals."""
     return [c for c in frames.columns if c.startswith("ms_") and c not in DERIVED_TIME_COLUMNS]
@@ -84,7 +91,8 @@ def lead_rows(frames: pd.DataFrame) -> pd.DataFrame:
         ["run_id", "frame", "is_lead"], ascending=[True, True, False], kind="stable"
     )
     lead = order.drop_duplicates(["run_id", "frame"]).reset_index(drop=True)
-    blanked = ["ttc_camera", "ttc_lidar", "camera_ratio", "d_prev", "d_curr"]
+    blanked = ["ttc_camera", "ttc_lidar", "ttc_fused", "camera_ratio", "fused_ratio", "d_prev",
+               "d_curr"]  # fmt: skip
     lead.loc[~lead["is_lead"].astype(bool), [c for c in blanked if c in lead]] = np.nan
     return lead
 
@@ -147,9 +155,10 @@ def attach_reference(
 
 
 def estimated_ratio(table: pd.DataFrame, sensor: str) -> np.ndarray:
-    """The distance ratio ``d_prev / d_curr`` (n,) an estimate of ``sensor`` rests on."""
-    if sensor == "camera":
-        return table["camera_ratio"].to_numpy(dtype=float)
+    """The distance ratio ``d_prev / d_curr`` (n,) an estimate of ``sensor`` rests on (the
+    fusion: its state's, ``fused_ratio``)."""
+    if sensor in ("camera", "fused"):
+        return table[f"{sensor}_ratio"].to_numpy(dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         return table["d_prev"].to_numpy(dtype=float) / table["d_curr"].to_numpy(dtype=float)
 
@@ -206,7 +215,7 @@ def frame_errors(
     judged = out["judgeable"].to_numpy(dtype=bool) & np.isfinite(ref) & (ref > 0)
     no_course = np.isposinf(ref)
     out["ref_warns"] = np.isfinite(ref) & (ref > 0) & (ref < warning_s)
-    for s in SENSORS:
+    for s in sensors_of(out):
         ratio = estimated_ratio(out, s)
         ttc = out[f"ttc_{s}"].to_numpy(dtype=float)
         finite = np.isfinite(ttc)

@@ -28,10 +28,10 @@ import pandas as pd
 from ttc.evaluation.errors import (
     FALSE_ALARM_S,
     OUTLIER_REL,
-    SENSORS,
     WARNING_TTC_S,
     attach_reference,
     frame_errors,
+    sensors_of,
     stage_time_columns,
 )
 from ttc.evaluation.reference import REGIMES
@@ -107,7 +107,7 @@ def run_metrics(
     """
     t = judged_frames(frames, reference, outlier_rel, false_alarm_s, warning_s)
     runs = t["run_id"]
-    parts = [_sensor_metrics(t, s) for s in SENSORS]
+    parts = [_sensor_metrics(t, s) for s in sensors_of(t)]
     finite_ref = np.isfinite(t["ttc_ref_s"]) & (t["ttc_ref_s"] > 0)
     totals = pd.DataFrame(
         {
