@@ -111,7 +111,11 @@ def log_sweep(
     for record in runs.to_dict("records"):
         run_id = record["run_id"]
         axes = {a: str(record[a]) for a in AXES if a in record}
-        rows_path, _ = store.run_paths(sweep_dir, run_id)
+        rows_file = record.get("rows_file")  # a batch's rows file, NaN in older records
+        rows_path = store.rows_path(
+            sweep_dir,
+            {"run_id": run_id, "rows_file": rows_file if isinstance(rows_file, str) else None},
+        )
         child = client.create_run(
             experiment_id,
             run_name=" ".join(axes.get(a, "") for a in AXES[:4]).strip() or run_id,
