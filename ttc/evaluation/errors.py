@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ttc.evaluation.reference import MAX_REF_REL_SD, MID_SCALE, MIN_CLOSING_SPEED_MPS
+from ttc.evaluation.reference import MID_SCALE, two_frame_ttc
 
 #: The estimates judged: camera (FP.4), lidar (FP.2) and their Kalman fusion (FP.7,
 #: ``ttc_fused`` / ``fused_ratio``, present in sweeps made since the ``fusion`` axis exists).
@@ -106,27 +106,21 @@ def _pair_reference(table: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFram
     prev, curr = table["prev_frame"].to_numpy(), table["frame"].to_numpy()
     d_prev = ref["distance_smooth_m"].reindex(prev).to_numpy()
     d_curr = ref["distance_smooth_m"].reindex(curr).to_numpy()
-    dt = table["dt"].to_numpy(dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = d_prev / d_curr
-        speed = (d_prev - d_curr) / dt
-        closing = speed > MIN_CLOSING_SPEED_MPS
-        ttc = np.where(closing, d_curr / speed, np.where(np.isnan(speed), np.nan, np.inf))
         rel_sd = (
             ref["distance_sd_m"].reindex(prev).to_numpy() / d_prev
             + ref["distance_sd_m"].reindex(curr).to_numpy() / d_curr
         )
-        ttc_sd = np.where(np.isfinite(ttc), dt * ratio / (ratio - 1.0) ** 2 * rel_sd, np.nan)
-    standing = ratio == 1.0
+    pair = two_frame_ttc(d_prev, d_curr, table["dt"].to_numpy(dtype=float), rel_sd)
     return pd.DataFrame(
         {
-            "ttc_ref_s": ttc,
-            "collision_course": closing & np.isfinite(ttc),
-            "ratio_ref": ratio,
+            "ttc_ref_s": pair["ttc"],
+            "collision_course": pair["closing"] & np.isfinite(pair["ttc"]),
+            "ratio_ref": pair["ratio"],
             "mid_ref_sd": MID_SCALE * rel_sd,
-            "ttc_ref_sd_s": ttc_sd,
-            "judgeable": np.isfinite(ttc) & (ttc_sd <= MAX_REF_REL_SD * ttc),
-            "regime": np.where(standing, "stationary", table["regime"].to_numpy()),
+            "ttc_ref_sd_s": pair["ttc_sd"],
+            "judgeable": pair["judgeable"],
+            "regime": np.where(pair["ratio"] == 1.0, "stationary", table["regime"].to_numpy()),
         },
         index=table.index,
     )

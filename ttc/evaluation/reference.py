@@ -267,6 +267,30 @@ def _regimes(speed: np.ndarray, stop: int | None, fraction: float) -> np.ndarray
     return regime
 
 
+def two_frame_ttc(
+    d_prev: np.ndarray,
+    d_curr: np.ndarray,
+    dt: np.ndarray,
+    log_ratio_sd: np.ndarray,
+    min_closing_speed: float = MIN_CLOSING_SPEED_MPS,
+) -> dict[str, np.ndarray]:
+    """What a two-frame constant-velocity estimator outputs from distances ``d_prev`` and
+    ``d_curr`` (m, (n,) each) ``dt`` seconds apart, given the standard deviation of
+    ``ln(d_prev / d_curr)``: ``ratio``, ``speed`` (m/s), ``closing`` (speed above
+    ``min_closing_speed``), ``ttc`` (s; +inf when not closing, NaN when unknown), ``ttc_sd``
+    (s, first order) and ``judgeable`` (finite TTC known to :data:`MAX_REF_REL_SD`)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = d_prev / d_curr
+        speed = (d_prev - d_curr) / dt
+        closing = speed > min_closing_speed
+        ttc = np.where(closing, d_curr / speed, np.where(np.isnan(speed), np.nan, np.inf))
+        ttc_sd = np.where(np.isfinite(ttc), dt * ratio / (ratio - 1.0) ** 2, np.nan)
+        ttc_sd = ttc_sd * log_ratio_sd
+    judgeable = np.isfinite(ttc) & (ttc_sd <= MAX_REF_REL_SD * ttc)
+    return {"ratio": ratio, "speed": speed, "closing": closing, "ttc": ttc, "ttc_sd": ttc_sd,
+            "judgeable": judgeable}  # fmt: skip
+
+
 def reference_ttc(
     distances: pd.DataFrame | pd.Series,
     dt: float = 1.0 / SENSOR_RATE_HZ,
@@ -316,15 +340,11 @@ def reference_ttc(
     prev = np.r_[np.nan, smooth[:-1]] if n else smooth
     step_s = np.r_[np.nan, np.diff(t)] if n else t
     with np.errstate(divide="ignore", invalid="ignore"):
-        speed = (prev - smooth) / step_s
-        ratio = prev / smooth
-        closing = speed > min_closing_speed
-        ttc = np.where(closing, smooth / speed, np.where(np.isnan(speed), np.nan, np.inf))
         grad = np.zeros_like(W)  # d ln(ratio_ref) / d raw distance, per pair
         grad[1:] = W[:-1] / smooth[:-1, None] - W[1:] / smooth[1:, None]
-        log_ratio_sd = sigma * np.linalg.norm(grad, axis=1)
-        ttc_sd = np.where(np.isfinite(ttc), step_s * ratio / (ratio - 1.0) ** 2, np.nan)
-        ttc_sd = ttc_sd * log_ratio_sd
+    log_ratio_sd = sigma * np.linalg.norm(grad, axis=1)
+    pair = two_frame_ttc(prev, smooth, step_s, log_ratio_sd, min_closing_speed)
+    speed, ratio, closing, ttc = pair["speed"], pair["ratio"], pair["closing"], pair["ttc"]
 
     table["distance_m"] = raw
     table["distance_interpolated"] = ~measured
@@ -337,8 +357,8 @@ def reference_ttc(
     table["ttc_ref_s"] = ttc
     table["collision_course"] = closing
     table["mid_ref_sd"] = MID_SCALE * np.where(np.isnan(ratio), np.nan, log_ratio_sd)
-    table["ttc_ref_sd_s"] = ttc_sd
-    table["judgeable"] = np.isfinite(ttc) & (ttc_sd <= MAX_REF_REL_SD * ttc)
+    table["ttc_ref_sd_s"] = pair["ttc_sd"]
+    table["judgeable"] = pair["judgeable"]
     table["regime"] = _regimes(speed, stop, STOPPING_SPEED_FRACTION)
     table["noise_sd_m"] = sigma
     return table.reset_index()
