@@ -15,6 +15,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from experiments import store
+from experiments.finished import count_lines
 from ttc.pipeline import SETTING_AXES
 
 SETTING_COLUMNS = list(SETTING_AXES)
@@ -100,21 +101,13 @@ def summarise_sweep(
     sweep_dir = Path(sweep_dir)
     unchanged = unchanged and store.merge_is_current(sweep_dir)
     runs = pd.read_parquet(sweep_dir / store.RUNS_FILE) if unchanged else store.merge(sweep_dir)
-    n_rows = pq.ParquetFile(sweep_dir / store.FRAMES_FILE).metadata.num_rows
-    counts = runs["status"].value_counts() if not runs.empty else pd.Series(dtype=int)
+    n_rows = store.merged_row_count(sweep_dir)
     print(f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({n_rows} rows)")
     print(f"run records:   {sweep_dir / store.RUNS_FILE}")
-    print(
-        f"settings: {len(runs)} total, {counts.get('ok', 0)} ok, "
-        f"{counts.get('skipped', 0)} skipped, {counts.get('failed', 0)} failed"
-    )
     progress = store.progress_dir(sweep_dir)
-    if progress.is_dir():
-        outcomes = pd.Series(store.progress_outcomes(progress), dtype=str)
-        print(
-            f"this invocation: {int((outcomes != 'resumed').sum())} computed, "
-            f"{int((outcomes == 'resumed').sum())} already complete (resumed)"
-        )
+    outcomes = store.progress_outcomes(progress) if progress.is_dir() else None
+    statuses = [] if runs.empty else runs["status"].astype(str).tolist()
+    print("\n".join(count_lines(statuses, outcomes)))
     for _, run in runs[runs["status"] == "failed"].iterrows() if not runs.empty else []:
         print(f"  failed {run['run_id']}: {run['message']}")
     if "n_frame_errors" in runs:

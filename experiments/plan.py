@@ -30,6 +30,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from experiments import store
 from experiments.config import run_identity, setting_config
+from experiments.finished import plan_line
 from experiments.records import now, peak_rss_mb, record_head
 from ttc.descriptors import check_pair
 from ttc.matching import TRACKERS
@@ -155,11 +156,10 @@ class Plan:
 
     def summary(self) -> str:
         """The plan in one line."""
-        return (
-            f"sweep plan: {self.settings} settings: {self.complete} already complete (not "
-            f"launched), {self.invalid} skipped as invalid detector x descriptor pairs, "
-            f"{self.to_compute} to compute in {len(self.jobs)} jobs ({self.batches} batches)"
-        )
+        return plan_line(
+            self.settings, self.complete, self.invalid, self.to_compute, len(self.jobs),
+            self.batches,
+        )  # fmt: skip
 
 
 #: Rough ms per frame of a detector's / descriptor's stage on KITTI (README, per-stage
@@ -299,20 +299,16 @@ def plan_key(jobs: Sequence[Sequence[str]], config: DictConfig) -> str:
     classes fill in defaults) and the Hydra and OmegaConf versions."""
     from importlib import metadata  # noqa: PLC0415
 
-    from experiments.paths import PROJECT_ROOT  # noqa: PLC0415
+    from experiments.provenance import source_identities  # noqa: PLC0415
 
     task = {k: v for k, v in OmegaConf.to_container(config, resolve=False).items()
             if k != "hydra"}  # fmt: skip
-    roots = [PROJECT_ROOT / "experiments", PROJECT_ROOT / "ttc", PROJECT_ROOT / "hydra_plugins"]
-    for source in config.hydra.runtime.config_sources:
-        if source.provider != "hydra" and str(source.path).startswith("file://"):
-            roots.append(Path(str(source.path)[len("file://") :]))
-    files = []
-    for root in roots:
-        for path in sorted(root.rglob("*")):
-            if path.suffix in (".py", ".yaml", ".yml") and path.is_file():
-                stat = path.stat()
-                files.append((str(path), stat.st_size, stat.st_mtime_ns))
+    extra = tuple(
+        Path(str(source.path)[len("file://") :])
+        for source in config.hydra.runtime.config_sources
+        if source.provider != "hydra" and str(source.path).startswith("file://")
+    )
+    files = source_identities(extra)
     versions = [metadata.version(p) for p in ("hydra-core", "omegaconf")]
     digest = hashlib.sha256()
     for part in (task, [list(j) for j in jobs], files, versions):
@@ -347,4 +343,4 @@ def finished_from_memory(sweep_dir: Path, key: str, config: DictConfig) -> Plan 
         if f"{rid}.json" not in recorded or store.incomplete_reason(sweep_dir, rid, checks):
             return None
     store.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * len(run_ids))
-    return Plan(settings=len(run_ids), complete=len(run_ids))
+    return Plan(settings=len(run_ids), complete=len(run_ids), run_ids=list(run_ids))

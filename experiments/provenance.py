@@ -7,6 +7,7 @@ import platform
 import subprocess
 import sys
 from importlib import metadata
+from pathlib import Path
 
 from experiments.paths import PROJECT_ROOT
 
@@ -46,6 +47,22 @@ def package_versions() -> dict[str, str | None]:
     versions = {"python": platform.python_version(), "opencv": cv2.__version__}
     versions.update({name: _version(name) for name in PACKAGES[1:]})
     return versions
+
+
+#: The project's folders whose Python and YAML files decide what a command computes.
+SOURCE_ROOTS = ("conf", "experiments", "ttc", "hydra_plugins")
+
+
+def source_identities(extra_roots: tuple[Path, ...] = ()) -> list[tuple[str, int, int]]:
+    """(path, size in bytes, mtime in ns) of every ``.py`` / ``.yaml`` file under the project's
+    :data:`SOURCE_ROOTS` and ``extra_roots``, sorted: a change to the code or configs shows."""
+    files = []
+    for root in (*(PROJECT_ROOT / r for r in SOURCE_ROOTS), *extra_roots):
+        for path in sorted(Path(root).rglob("*")):
+            if path.suffix in (".py", ".yaml", ".yml") and path.is_file():
+                stat = path.stat()
+                files.append((str(path), stat.st_size, stat.st_mtime_ns))
+    return files
 
 
 @functools.cache

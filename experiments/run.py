@@ -21,6 +21,13 @@ when a setting failed (:mod:`experiments.callbacks`).
 from __future__ import annotations
 
 import sys
+
+if __name__ == "__main__":  # a finished sweep is reported before the slow imports below
+    from experiments.finished import report_if_finished
+
+    if report_if_finished(sys.argv[1:]):
+        sys.exit(0)
+
 import time
 import traceback
 from pathlib import Path

@@ -471,6 +471,11 @@ def _partitions(table: pa.Table) -> Iterator[tuple[tuple, pa.Table]]:
         yield tuple(keys.iloc[begin]), table.slice(begin, end - begin)
 
 
+def merged_row_count(sweep_dir: Path) -> int:
+    """Rows of the merged ``frames.parquet`` (from its footer: nothing loaded)."""
+    return pq.ParquetFile(Path(sweep_dir) / FRAMES_FILE).metadata.num_rows
+
+
 def merge_is_current(sweep_dir: Path) -> bool:
     """True when both merged files exist and were merged from today's run records."""
     sweep_dir = Path(sweep_dir)

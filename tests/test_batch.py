@@ -54,11 +54,15 @@ def two_ways(tmp_path_factory) -> dict[str, object]:
     assert single.returncode == 0, single.stderr[-3000:]
     runs_dir = tmp / "batched" / "grid" / store.RUNS_DIR
     before = {p.name: p.stat().st_mtime_ns for p in runs_dir.iterdir()}
-    again = run(GRID, tmp / "batched", tmp / "cache")
+    # the same sweep in other words (a default restated): the sweeper's plan memory
+    again = run([*GRID, "print_rows=20"], tmp / "batched", tmp / "cache")
     assert again.returncode == 0, again.stderr[-3000:]
+    # the same command line: recognised before Hydra starts (experiments/finished.py)
+    remembered = run(GRID, tmp / "batched", tmp / "cache")
+    assert remembered.returncode == 0, remembered.stderr[-3000:]
     after = {p.name: p.stat().st_mtime_ns for p in runs_dir.iterdir()}
     return {"tmp": tmp, "batched": batched, "single": single, "again": again,
-            "before": before, "after": after}  # fmt: skip
+            "remembered": remembered, "before": before, "after": after}  # fmt: skip
 
 
 def test_batched_sweep_gives_the_rows_and_records_of_one_setting_per_job(two_ways) -> None:
@@ -94,12 +98,16 @@ def test_batched_sweep_gives_the_rows_and_records_of_one_setting_per_job(two_way
     assert len(files) == 3 and all(f.startswith("batch-") for f in files)
 
 
-def test_finished_sweep_launches_no_worker(two_ways) -> None:
-    again = two_ways["again"]
+@pytest.mark.parametrize("which", ["again", "remembered"])
+def test_finished_sweep_launches_no_worker(two_ways, which) -> None:
+    again = two_ways[which]
     assert "sweep plan: 32 settings: 32 already complete (not launched)" in again.stdout
     assert "to compute in 0 jobs" in again.stdout
     assert "Launching" not in again.stderr + again.stdout  # the launcher was not called
     assert "this invocation: 0 computed, 32 already complete" in again.stdout
+    assert "settings: 32 total, 24 ok, 8 skipped, 0 failed" in again.stdout
+    # only the identical command line is recognised before Hydra composes anything
+    assert ("no config composed" in again.stdout) == (which == "remembered")
     assert two_ways["after"] == two_ways["before"]  # no record, rows or lock file touched
     jobs = two_ways["tmp"] / "batched" / "grid" / "jobs"
     assert sorted(p.name for p in jobs.iterdir()) == ["0", "1", "2"]  # the first run's jobs

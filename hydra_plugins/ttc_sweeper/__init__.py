@@ -114,6 +114,7 @@ class TTCSweeper(BasicSweeper):
         self.validator = validator
         self.max_settings_per_job = max_settings_per_job
         self.planner: Any = None
+        self.run_ids: list[str] = []  # of every plan of this sweep
 
     def _planner(self) -> Any:
         """The sweep's :class:`experiments.plan.SettingPlanner` (its compositions are shared
@@ -175,6 +176,7 @@ class TTCSweeper(BasicSweeper):
         and code (:func:`experiments.plan.plan_key`) whose every run is complete launches
         nothing without composing a config."""
         from experiments import plan as planning  # noqa: PLC0415
+        from experiments.finished import remember_command  # noqa: PLC0415
 
         assert self.config is not None
         key = planning.plan_key(batch, self.config)
@@ -184,6 +186,8 @@ class TTCSweeper(BasicSweeper):
             limit = max(1, self.max_settings_per_job)
             plan = planning.make_plan(batch, self._planner(), self.config, sweep_dir, limit)
             planning.remember_run_ids(sweep_dir, key, plan.run_ids)
+        self.run_ids += plan.run_ids
+        remember_command(sweep_dir, self.run_ids)  # python -m experiments.run checks it first
         print(plan.summary(), flush=True)
         return plan.jobs
 
