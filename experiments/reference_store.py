@@ -47,9 +47,12 @@ def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
 
     def compute() -> dict[str, np.ndarray]:
         ref = reference_module.reference_for_sequence(sequence_dir, 0, last, times=times)
-        # text columns as fixed-width strings: cache entries hold no pickled objects
+        # text columns (object, or pandas' str dtype) as fixed-width strings: cache entries
+        # hold no pickled objects, and an object array would make every load discard it
         return {
-            c: ref[c].to_numpy().astype(str) if ref[c].dtype == object else ref[c].to_numpy()
+            c: ref[c].to_numpy().astype(str)
+            if pd.api.types.is_string_dtype(ref[c]) or pd.api.types.is_object_dtype(ref[c])
+            else ref[c].to_numpy()
             for c in ref.columns
         }
 

@@ -242,3 +242,18 @@ def test_real_reference_handles_the_truncated_last_scan(kitti_reference):
     assert last["distance_interpolated"]
     assert last["distance_smooth_m"] == pytest.approx(4.42, abs=0.05)
     assert not ref.loc[:76, "distance_interpolated"].any()
+
+
+def test_stored_reference_is_read_back_not_recomputed(kitti_dir, kitti_reference, tmp_path):
+    """The reference kept in the stage cache loads in a fresh cache (no in-memory copy) as
+    it was computed: text columns stored as strings, so the entry is not discarded."""
+    from experiments.reference_store import sequence_reference  # noqa: PLC0415
+    from ttc.cache import StageCache  # noqa: PLC0415
+
+    first = sequence_reference(kitti_dir, StageCache(tmp_path, memory_mb=0))
+    fresh = StageCache(tmp_path, memory_mb=0)
+    again = sequence_reference(kitti_dir, fresh)
+    assert fresh.corrupt_entries == 0
+    assert fresh.load("reference", next(tmp_path.glob("reference/*/*.npz")).stem) is not None
+    pd.testing.assert_frame_equal(again, first)
+    assert again["regime"].tolist() == kitti_reference["regime"].tolist()
