@@ -15,7 +15,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 
 def shrink_rois(roi: np.ndarray, factor: float) -> np.ndarray:
@@ -215,6 +214,9 @@ def hungarian(counts: BoxCounts, params: BoxMatchingParams) -> BoxMatches:
     shared = counts.counts
     if shared.size == 0:
         return _box_matches([], [], shared)
+    # imported here: scipy.optimize takes ~0.6 s to import, paid by every worker otherwise
+    from scipy.optimize import linear_sum_assignment  # noqa: PLC0415
+
     prev, curr = linear_sum_assignment(shared, maximize=True)
     keep = shared[prev, curr] >= params.min_count
     return _box_matches(prev[keep], curr[keep], shared)

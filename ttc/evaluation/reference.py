@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.signal import savgol_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -185,6 +184,9 @@ def smoothing_matrix(n: int, window: int = WINDOW, polyorder: int = POLYORDER) -
     w = _window_length(n, window, polyorder)
     if not w:
         return np.eye(n)
+    # imported here: scipy.signal takes ~1 s to import (every sweep summary and report)
+    from scipy.signal import savgol_filter  # noqa: PLC0415
+
     return savgol_filter(np.eye(n), w, polyorder, axis=0)
 
 
