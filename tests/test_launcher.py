@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 
 import pytest
 from hydra import compose, initialize_config_dir
@@ -10,7 +11,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from experiments.config import register_configs
-from hydra_plugins.ttc_launcher import JobComposer, worker_death
+from hydra_plugins.ttc_launcher import JobComposer, shut_down_workers, worker_death
 from hydra_plugins.ttc_sweeper import group_combination_jobs, representative_jobs
 from tests.conftest import PROJECT_ROOT
 
@@ -91,3 +92,16 @@ def test_worker_death_names_the_signal() -> None:
         "caused by a segmentation fault ...\n\nThe exit codes of the workers are {SIGKILL(-9)}"
     )
     assert worker_death(exc).startswith("worker process died (SIGKILL(-9)): killed by a signal")
+
+
+def test_worker_processes_end_with_the_sweep() -> None:
+    """After the jobs, no pool worker stays alive holding memory (loky's resource trackers,
+    a few MB, are all that remains)."""
+    psutil = pytest.importorskip("psutil")
+    from joblib import Parallel, delayed  # noqa: PLC0415
+
+    pids = set(Parallel(n_jobs=2, backend="loky")(delayed(os.getpid)() for _ in range(4)))
+    alive = {c.pid for c in psutil.Process().children(recursive=True)}
+    assert pids <= alive  # the pool keeps its workers for reuse
+    shut_down_workers(2)
+    assert not pids & {c.pid for c in psutil.Process().children(recursive=True)}
