@@ -125,9 +125,10 @@ def report_if_finished(argv: Sequence[str]) -> bool:
         record = store.read_record(sweep_dir, rid)
         if record is None or store.record_problem(sweep_dir, record, checks) is not None:
             return False
-    if not store.merge_is_current(sweep_dir):
+    records = store.list_records(sweep_dir)
+    if not store.merge_is_current(sweep_dir, records):
         return False
-    statuses = [str(r.get("status")) for r in store.list_records(sweep_dir)]
+    statuses = [str(r.get("status")) for r in records]
     rows = store.merged_row_count(sweep_dir)
     print(
         plan_line(len(run_ids), len(run_ids), 0, 0, 0, 0),

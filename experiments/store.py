@@ -476,10 +476,11 @@ def merged_row_count(sweep_dir: Path) -> int:
     return pq.ParquetFile(Path(sweep_dir) / FRAMES_FILE).metadata.num_rows
 
 
-def merge_is_current(sweep_dir: Path) -> bool:
-    """True when both merged files exist and were merged from today's run records."""
+def merge_is_current(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> bool:
+    """True when both merged files exist and were merged from today's run records
+    (``records``: :func:`list_records` of the sweep, when already read)."""
     sweep_dir = Path(sweep_dir)
-    digest = merge_digest(list_records(sweep_dir))
+    digest = merge_digest(list_records(sweep_dir) if records is None else records)
     return all(_stored_digest(sweep_dir / name) == digest for name in (FRAMES_FILE, RUNS_FILE))
 
 
@@ -494,13 +495,13 @@ def load_sweep(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     sweep_dir = Path(sweep_dir)
     if not (sweep_dir / RUNS_DIR).is_dir():
         raise StoreError(sweep_dir, f"no {RUNS_DIR}/ folder: not a sweep folder")
-    checks = Checks()
-    for record in list_records(sweep_dir):
+    checks, records = Checks(), list_records(sweep_dir)
+    for record in records:
         if record.get("status") == "ok":
             path = rows_path(sweep_dir, record)
             if (problem := _rows_problem(path, record.get("rows_sha256"), checks)) is not None:
                 raise StoreError(path, f"rows file {problem}")
-    if merge_is_current(sweep_dir):
+    if merge_is_current(sweep_dir, records):
         try:
             return pd.read_parquet(sweep_dir / FRAMES_FILE), pd.read_parquet(sweep_dir / RUNS_FILE)
         except Exception:  # damaged between the check and the read: merge again

@@ -4,6 +4,7 @@ the real command line (subprocesses), reported by ``python -m experiments.report
 from __future__ import annotations
 
 import io
+import json
 import os
 import subprocess
 import sys
@@ -297,3 +298,17 @@ def test_fresh_sweep_reproduces_the_committed_fp5_table(fp5_report: Path) -> Non
     for column in REPRODUCED:
         differ = both[both[column] != both[f"{column}_committed"]]
         assert differ.empty, f"{column} differs:\n{differ[[*key, column]].head()}"
+
+
+def test_common_config_names_the_shared_values_and_the_varying_keys() -> None:
+    from experiments.report.header import _common_config  # noqa: PLC0415
+
+    a = {"detector": {"name": "fast", "threshold": 30}, "dataset": {"last": 18, "step": 1},
+         "lane": [2.0, 20.0]}  # fmt: skip
+    b = {"detector": {"name": "orb", "threshold": 30}, "dataset": {"last": 18, "step": 1},
+         "lane": [2.0, 20.0], "fusion": {"name": "none"}}  # fmt: skip
+    configs = pd.Series([json.dumps(a), json.dumps(b), json.dumps(a)])
+    common, varying = _common_config(configs)
+    assert common == {"detector.threshold": 30, "dataset.last": 18, "dataset.step": 1,
+                      "lane": [2.0, 20.0]}  # fmt: skip
+    assert varying == ["detector.name", "fusion.name"]

@@ -16,15 +16,41 @@ from ttc.pipeline import AXES
 
 
 def _unique(values: Iterable[Any]) -> str:
-    return ", ".join(sorted({str(v) for v in values if v is not None and v == v})) or "n/a"
+    distinct = pd.unique(pd.Series(values if isinstance(values, pd.Series) else list(values)))
+    return ", ".join(sorted({str(v) for v in distinct if v is not None and v == v})) or "n/a"
+
+
+def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
+    """A config's leaves by dotted key (lists are leaves)."""
+    if not isinstance(tree, dict) or not tree:
+        return {prefix: tree}
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        out.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
+    return out
 
 
 def _common_config(configs: pd.Series) -> tuple[dict[str, Any], list[str]]:
-    """Keys (dotted) equal in every run's config, and the keys that vary."""
-    flat = pd.json_normalize([json.loads(c) for c in configs]).astype(str)
-    constant = flat.nunique(dropna=False) == 1
-    common = {k: json.loads(json.dumps(flat[k].iloc[0])) for k in flat.columns[constant]}
-    return common, sorted(flat.columns[~constant])
+    """Keys (dotted) equal in every run's config, and the keys that vary. Each distinct
+    config text is parsed once; a leaf is compared only while it is still common."""
+    texts = pd.unique(configs.dropna())
+    if not len(texts):
+        return {}, []
+    common = _flat(json.loads(texts[0]))
+    keys = set(common)
+    for text in texts[1:]:
+        leaves = _flat(json.loads(text))
+        keys.update(leaves)
+        for key in [k for k, v in common.items() if leaves.get(k, _MISSING) != v]:
+            del common[key]
+    return common, sorted(keys - common.keys())
+
+
+_MISSING = object()
+
+
+#: The last header's data and lines (a report writes the same header on every page).
+_LAST: list[tuple[SweepData, list[str]]] = []
 
 
 def _sweeps_cell(data: SweepData) -> str:
@@ -41,6 +67,13 @@ def _sweeps_cell(data: SweepData) -> str:
 
 def provenance_markdown(data: SweepData, title: str) -> str:
     """The provenance header (markdown) of a report page titled ``title``."""
+    if not _LAST or _LAST[0][0] is not data:
+        _LAST[:] = [(data, _provenance_lines(data))]
+    return "\n".join([f"# {title}", *_LAST[0][1]])
+
+
+def _provenance_lines(data: SweepData) -> list[str]:
+    """The lines of :func:`provenance_markdown` after its title."""
     runs = data.runs
     commits = runs.groupby(["git_commit", "git_dirty"], dropna=False).size()
     code = "; ".join(f"`{c}` dirty={d} ({n} runs)" for (c, d), n in commits.items())
@@ -56,7 +89,6 @@ def provenance_markdown(data: SweepData, title: str) -> str:
         f"`{s}`: {' '.join(o) or '(defaults)'}" for s, o in data.overrides.items()
     )
     lines = [
-        f"# {title}",
         "",
         "| provenance | |",
         "|---|---|",
@@ -84,4 +116,4 @@ def provenance_markdown(data: SweepData, title: str) -> str:
         "</details>",
         "",
     ]
-    return "\n".join(lines)
+    return lines
