@@ -65,6 +65,7 @@ def test_every_experiment_composes_as_a_multirun(experiment: str) -> None:
     assert params and set(params) <= set(AXES) | {
         "lidar.shrink",
         "dataset.step",
+        "dataset.drive",
         "detector.subpixel",
     }
     assert experiment in cfg.sweep_name

@@ -12,6 +12,7 @@ submodules are the stages of judging:
 - :mod:`~ttc.evaluation.metrics`: those errors aggregated per run, per sensor and regime;
 - :mod:`~ttc.evaluation.ranking`: the ranking rule;
 - :mod:`~ttc.evaluation.bootstrap`: rank intervals from a moving-block bootstrap;
+- :mod:`~ttc.evaluation.drives`: several drives in one sweep, per drive and pooled;
 - :mod:`~ttc.evaluation.compare`: one setting in two sweeps;
 - :mod:`~ttc.evaluation.lead_status`: frames without one lead vehicle to judge against
   (``no_lead``, ``lead_change``), which split the reference into segments;
@@ -33,6 +34,13 @@ from ttc.evaluation.bootstrap import (
     tied_for_first,
 )
 from ttc.evaluation.compare import COMPARED_METRICS, compare_runs
+from ttc.evaluation.drives import (
+    DRIVE_FRAME_STRIDE,
+    POOLED,
+    drive_rankings,
+    pooled_frames,
+    stack_drives,
+)
 from ttc.evaluation.errors import (
     CACHED_STAGE_INPUTS,
     FALSE_ALARM_S,
@@ -154,6 +162,11 @@ __all__ = [
     "lead_distance_series",
     "lead_points",
     "lead_rows",
+    "DRIVE_FRAME_STRIDE",
+    "POOLED",
+    "drive_rankings",
+    "pooled_frames",
+    "stack_drives",
     "LEAD_CHANGE",
     "LEAD_STATUSES",
     "NO_LEAD",
