@@ -278,6 +278,8 @@ def run_id(cfg: DictConfig) -> str:
 def missing_data_message(cfg: DictConfig) -> str:
     """What to say when the configured recording folder does not exist."""
     sequence_dir = data_root(cfg) / cfg.dataset.sequence
+    if cfg.dataset.get("date"):
+        return datasets.missing_drive_message(sequence_dir)
     return (
         f"KITTI frames not found: {sequence_dir} does not exist.\n"
         "Point TTC_DATA_DIR (or dataset.root=...) at a folder holding "

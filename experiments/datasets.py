@@ -124,3 +124,14 @@ def layout_problems(date: str, sequence_dir: Path) -> list[str]:
         if not any((folder / name).is_file() for folder in (sequence_dir, sequence_dir.parent)):
             problems.append(f"{sequence_dir.parent / name}: calibration file not found")
     return problems
+
+
+def missing_drive_message(sequence_dir: Path) -> str:
+    """What to say when a KITTI-raw drive folder does not exist (nothing is downloaded)."""
+    return (
+        f"KITTI raw drive not found: {sequence_dir} does not exist.\n"
+        "KITTI raw needs registration at https://www.cvlibs.net/datasets/kitti/raw_data.php; "
+        "nothing downloads it. Unpack the date's calibration and the drive's synced+rectified "
+        f"archive under {sequence_dir.parents[1]} in the official layout (README, 'Any KITTI "
+        "raw drive'), or point TTC_DATA_DIR / dataset.root at a folder holding kitti_raw/."
+    )

@@ -169,3 +169,12 @@ def test_a_drive_without_timestamps_or_calibration_is_refused(kitti_dir, tmp_pat
         "a KITTI-raw drive is judged at its real frame times",
         f"{seq.parent / CAM_TO_CAM}: calibration file not found",
     ]
+
+
+def test_a_missing_drive_says_how_to_obtain_it_and_downloads_nothing(tmp_path) -> None:
+    problems = config_problems(composed(["dataset=kitti_raw", f"dataset.root={tmp_path}"]))
+    assert len(problems) == 1 and "registration" in problems[0]
+    assert problems[0].startswith(
+        f"KITTI raw drive not found: {tmp_path}/kitti_raw/{DATE}/{DATE}_drive_0052_sync"
+    )
+    assert list(tmp_path.iterdir()) == []
