@@ -16,7 +16,13 @@ from experiments import store
 from experiments.report import drives, fp5, fp6
 from experiments.report import reference as reference_writer
 from experiments.report.html import html_report
-from experiments.report.load import SweepData, load_sweeps, make_context, reference_for
+from experiments.report.load import (
+    Context,
+    SweepData,
+    load_sweeps,
+    make_context,
+    reference_for,
+)
 from ttc import evaluation as ev
 
 
@@ -94,7 +100,7 @@ def build_report(
 
 def build_drives_report(
     data: SweepData,
-    ctx,
+    ctx: Context,
     out: Path,
     pictures: bool = True,
     log: Callable[[str], None] = print,
