@@ -19,7 +19,7 @@ import pandas as pd
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from experiments import paths
+from experiments import datasets, paths
 from ttc.box_matching import BoxMatchingParams
 from ttc.camera_ttc import CameraTTCParams
 from ttc.descriptors import DESCRIPTORS, NO_DESCRIPTOR
@@ -59,10 +59,12 @@ class DatasetConfig:
     root: str = MISSING  # data root (``$TTC_DATA_DIR`` or ../shared/data)
     sequence: str = "kitti/2011_09_26"
     first: int = 0
-    last: int = 18
+    last: int | None = 18  # None: the recording's last frame (experiments/datasets.py)
     step: int = 1
     projection: str = "P_rect_02"
     min_scan_points: int = 100_000
+    date: str = ""  # kitti_raw: the KITTI date folder, e.g. 2011_09_26
+    drive: str = ""  # kitti_raw: the drive number, e.g. 0052
 
 
 @dataclass
@@ -134,6 +136,7 @@ def register_configs() -> None:
     """Store the schemas in Hydra's ConfigStore and the ``ttc_path`` resolver (default folders)."""
     if not OmegaConf.has_resolver("ttc_path"):
         OmegaConf.register_new_resolver("ttc_path", lambda kind: str(paths.default(kind)))
+    datasets.register_resolvers()
     cs = ConfigStore.instance()
     cs.store(name="ttc_schema", node=_writable(RunConfig))
     for group, registry in NAMED_GROUPS.items():
@@ -178,10 +181,11 @@ def data_root(cfg: DictConfig) -> Path:
 def frame_range_from_config(cfg: DictConfig) -> FrameRange:
     """The core's :class:`FrameRange` for a composed config."""
     ds = cfg.dataset
+    sequence_dir = data_root(cfg) / ds.sequence
     return FrameRange(
-        sequence_dir=data_root(cfg) / ds.sequence,
+        sequence_dir=sequence_dir,
         first=ds.first,
-        last=ds.last,
+        last=datasets.frame_range_last(ds.last, sequence_dir),
         step=ds.step,
         projection=ds.projection,
         min_scan_points=ds.min_scan_points,
@@ -192,6 +196,9 @@ def setting_config(cfg: DictConfig) -> dict[str, Any]:
     """The part of the config that determines the numbers (no paths, no launcher)."""
     setting = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in (*AXES, "lidar")}
     setting["dataset"] = {k: v for k, v in setting["dataset"].items() if k != "root"}
+    setting["dataset"] = datasets.dataset_identity(
+        setting["dataset"], data_root(cfg) / cfg.dataset.sequence
+    )
     if setting["matcher"]["name"] in TRACKERS:  # no descriptor, no selection: one run id
         setting["descriptor"] = {"name": NO_DESCRIPTOR.name}
         setting["selector"] = {"name": NO_SELECTOR.name}
@@ -216,6 +223,8 @@ SUBPIXEL_SUFFIX = "+subpixel"
 NEUTRAL_OPTIONS: tuple[tuple[str, str, Any], ...] = (
     ("detector", "subpixel", False),
     ("fusion", "name", "none"),
+    ("dataset", "date", ""),
+    ("dataset", "drive", ""),
 )
 
 
@@ -269,6 +278,8 @@ def run_id(cfg: DictConfig) -> str:
 def missing_data_message(cfg: DictConfig) -> str:
     """What to say when the configured recording folder does not exist."""
     sequence_dir = data_root(cfg) / cfg.dataset.sequence
+    if cfg.dataset.get("date"):
+        return datasets.missing_drive_message(sequence_dir)
     return (
         f"KITTI frames not found: {sequence_dir} does not exist.\n"
         "Point TTC_DATA_DIR (or dataset.root=...) at a folder holding "
@@ -300,7 +311,11 @@ def config_problems(cfg: DictConfig) -> list[str]:
     except (ValueError, TypeError) as exc:
         problems.append(f"lidar.crop: {exc}")
     ds = cfg.dataset
-    first, last, step = int(ds.first), int(ds.last), int(ds.step)
+    sequence_dir = data_root(cfg) / ds.sequence
+    first, step = int(ds.first), int(ds.step)
+    last = datasets.resolved_last(ds.last, sequence_dir)
+    if last is None:  # a whole drive that has no frames: said below
+        last = first + step
     if first < 0:
         problems.append(f"dataset.first={first} must be >= 0")
     if step < 1:
@@ -316,7 +331,6 @@ def config_problems(cfg: DictConfig) -> list[str]:
         problems.append(f"dataset.projection={ds.projection} must be one of {PROJECTIONS}")
     if problems:
         return problems
-    sequence_dir = data_root(cfg) / ds.sequence
     if not sequence_dir.is_dir():
         return [missing_data_message(cfg)]
     present = recording_frames(sequence_dir)
@@ -327,7 +341,7 @@ def config_problems(cfg: DictConfig) -> list[str]:
             f"dataset.last={last} is past the recording's last frame: frames "
             f"{present[0]}–{present[-1]} exist in {sequence_dir}"
         )
-    return problems
+    return problems + datasets.layout_problems(ds.date, sequence_dir)
 
 
 def validate_config(cfg: DictConfig) -> None:

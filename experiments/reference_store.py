@@ -24,7 +24,10 @@ def sequence_of(runs: pd.DataFrame) -> str:
     """The one KITTI recording (``dataset.sequence``) of the runs."""
     sequences = sorted({json.loads(c)["dataset"]["sequence"] for c in runs["config"]})
     if len(sequences) != 1:
-        raise ValueError(f"the sweeps cover {len(sequences)} recordings {sequences}; report one")
+        raise ValueError(
+            f"the sweeps cover {len(sequences)} recordings {sequences}: `python -m "
+            "experiments.report` ranks them per drive and pooled (drives.md)"
+        )
     return sequences[0]
 
 

@@ -39,7 +39,10 @@ def test_every_axis_has_a_config_group_folder() -> None:
 
 
 #: Options that need a file the user brings: given a path, so the test reaches the core.
-USER_FILES = {("objects", "yolov3"): ["objects.weights_path=/nonexistent/yolov3.weights"]}
+USER_FILES = {
+    ("objects", "yolov3"): ["objects.weights_path=/nonexistent/yolov3.weights"],
+    ("dataset", "kitti_raw"): ["dataset.last=18"],  # a drive the shared data does not hold
+}
 
 
 @pytest.mark.parametrize(("group", "option"), OPTIONS)
@@ -62,6 +65,7 @@ def test_every_experiment_composes_as_a_multirun(experiment: str) -> None:
     assert params and set(params) <= set(AXES) | {
         "lidar.shrink",
         "dataset.step",
+        "dataset.drive",
         "detector.subpixel",
     }
     assert experiment in cfg.sweep_name

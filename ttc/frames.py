@@ -7,6 +7,10 @@ Layout of one recording (``kitti/2011_09_26`` under the data root)::
     calib_cam_to_cam.txt                  R_rect_00, P_rect_00, P_rect_02, ...
     calib_velo_to_cam.txt                 R, T  (Velodyne -> camera 0)
 
+The official KITTI-raw layout keeps the calibration one folder up, beside the drive folders
+(``<date>/calib_*.txt``, ``<date>/<date>_drive_<drive>_sync/image_02/...``):
+:func:`calibration_dir` finds it there when the recording folder has none.
+
 Every loader raises :class:`FrameDataError` naming the file and what is wrong. Non-finite
 lidar coordinates are *dropped and counted* (``LidarScan.n_dropped``), not refused: one bad
 record should not cost a frame, and the count makes the damage visible in the results.
@@ -132,6 +136,17 @@ def _matrix(entries: dict[str, str], key: str, shape: tuple[int, int], path: Pat
     return values.reshape(shape)
 
 
+def calibration_dir(sequence_dir: Path | str) -> Path:
+    """The folder holding a recording's ``calib_*.txt``: the recording folder itself (the
+    Udacity layout), else its parent when that holds them (the official KITTI-raw layout,
+    ``<date>/calib_*.txt`` beside ``<date>/<date>_drive_NNNN_sync/``); the recording folder
+    when neither does, so the error names the file where it was first looked for."""
+    sequence_dir = Path(sequence_dir)
+    if not (sequence_dir / CAM_TO_CAM).exists() and (sequence_dir.parent / CAM_TO_CAM).exists():
+        return sequence_dir.parent
+    return sequence_dir
+
+
 def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") -> Calibration:
     """Read both calibration files of a recording.
 
@@ -140,7 +155,7 @@ def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") ->
     """
     if projection not in PROJECTIONS:
         raise ValueError(f"projection must be one of {PROJECTIONS}, got {projection!r}")
-    sequence_dir = Path(sequence_dir)
+    sequence_dir = calibration_dir(sequence_dir)
     cam_path, velo_path = sequence_dir / CAM_TO_CAM, sequence_dir / VELO_TO_CAM
     cam = _read_calibration_file(cam_path)
     velo = _read_calibration_file(velo_path)
@@ -285,24 +300,25 @@ def _timestamp_ns(line: str, path: Path, number: int) -> int:
 
 
 def timestamps_file(sequence_dir: Path | str) -> Path | None:
-    """The timestamps file :func:`read_frame_times` reads (lidar preferred), or None."""
+    """The timestamps file :func:`read_frame_times` takes dt from (lidar preferred), or None."""
     for name in TIMESTAMP_FILES:
         if (Path(sequence_dir) / name).is_file():
             return Path(sequence_dir) / name
     return None
 
 
-def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
-    """Seconds of every frame index relative to frame 0, from the recording's KITTI
-    ``timestamps.txt`` (``velodyne_points/`` preferred over ``image_02/``); None when the
-    recording has neither file.
+#: Largest disagreement (s) between the camera's and the lidar's interval of one frame pair:
+#: a tenth of the 10 Hz period. One dt serves the lidar and the camera TTC of a pair, so
+#: clocks further apart would scale one of them silently by more than 10 %.
+CLOCK_TOLERANCE_S = 0.01
 
-    Raises :class:`FrameDataError` naming the file and line for a malformed line and for times
-    that are not strictly increasing. Values are rounded to the nanosecond of the file.
+
+def _read_times_ns(path: Path) -> tuple[np.ndarray, list[str]]:
+    """Nanoseconds since 1970 of every line of one KITTI ``timestamps.txt`` and its lines.
+
+    Raises :class:`FrameDataError` naming the file and line for a malformed line and for
+    times that are not strictly increasing.
     """
-    path = timestamps_file(sequence_dir)
-    if path is None:
-        return None
     try:
         lines = path.read_text().splitlines()
     except (OSError, UnicodeDecodeError) as exc:
@@ -319,7 +335,49 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
                 f"line {number + 1}: time {lines[number].strip()!r} is not after line "
                 f"{number}'s {lines[number - 1].strip()!r} (times must strictly increase)",
             )
-    return (np.array(ns, dtype=np.int64) - ns[0]) / 1e9
+    return np.array(ns, dtype=np.int64), lines
+
+
+def check_clocks_agree(lidar: Path, lidar_ns: np.ndarray, camera: Path, camera_ns: np.ndarray):
+    """Raise :class:`FrameDataError` naming the camera file (and line) when it does not list
+    as many frames as the lidar file, or when a frame pair's camera interval differs from its
+    lidar interval by more than :data:`CLOCK_TOLERANCE_S`."""
+    if len(camera_ns) != len(lidar_ns):
+        raise FrameDataError(
+            camera, f"{len(camera_ns)} timestamps, but {lidar} has {len(lidar_ns)} (one per frame)"
+        )
+    gap = np.abs(np.diff(camera_ns) - np.diff(lidar_ns)) / 1e9
+    bad = np.flatnonzero(gap > CLOCK_TOLERANCE_S)
+    if bad.size:
+        k = int(bad[0]) + 1  # frame k: the pair (k - 1, k), line k + 1
+        raise FrameDataError(
+            camera,
+            f"line {k + 1}: the camera's interval of frames {k - 1}->{k} differs from the "
+            f"lidar's ({lidar}) by {gap[k - 1] * 1e3:.1f} ms (> {CLOCK_TOLERANCE_S * 1e3:.0f} ms)",
+        )
+
+
+def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
+    """Seconds of every frame index relative to frame 0, from the recording's KITTI
+    ``timestamps.txt`` (``velodyne_points/`` preferred over ``image_02/``); None when the
+    recording has neither file.
+
+    When both files exist, both are read and must agree (:func:`check_clocks_agree`: as many
+    lines, every pair's intervals within :data:`CLOCK_TOLERANCE_S`); the lidar's times are
+    returned (KITTI triggers the camera from the lidar's rotation). When one is missing, the
+    other alone is used. Raises :class:`FrameDataError` naming the file and line for a
+    malformed line, times that are not strictly increasing, and clocks that disagree.
+    Values are rounded to the nanosecond of the file.
+    """
+    sequence_dir = Path(sequence_dir)
+    paths = [sequence_dir / name for name in TIMESTAMP_FILES if (sequence_dir / name).is_file()]
+    if not paths:
+        return None
+    clocks = [_read_times_ns(path)[0] for path in paths]
+    if len(paths) == 2:
+        check_clocks_agree(paths[0], clocks[0], paths[1], clocks[1])
+    ns = clocks[0]
+    return (ns - ns[0]) / 1e9
 
 
 def pair_interval(times: np.ndarray | None, prev: int, curr: int, step: int = 1) -> float:

@@ -37,6 +37,7 @@ from ttc.frames import (
     TIMESTAMP_FILES,
     VELO_TO_CAM,
     FrameDataError,
+    calibration_dir,
     file_identity,
     frame_files,
     read_image,
@@ -207,7 +208,8 @@ def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     """Every input file a run of ``settings`` on ``frames`` reads (some may not exist): the
     calibration and timestamps files, each frame's image and scan, the object model files."""
     seq = Path(frames.sequence_dir)
-    files = [seq / CAM_TO_CAM, seq / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
+    calib = calibration_dir(seq)
+    files = [calib / CAM_TO_CAM, calib / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
     for index in frames.indices:
         ff = frame_files(seq, index)
         files += [ff.image, ff.scan]

@@ -13,15 +13,23 @@ from typing import Any
 import matplotlib
 
 from experiments import store
-from experiments.report import fp5, fp6
+from experiments.report import drives, fp5, fp6
 from experiments.report import reference as reference_writer
 from experiments.report.html import html_report
-from experiments.report.load import SweepData, load_sweeps, make_context, reference_for
+from experiments.report.load import (
+    Context,
+    SweepData,
+    load_sweeps,
+    make_context,
+    reference_for,
+)
 from ttc import evaluation as ev
 
 
 def write_sweep_metrics(data: SweepData, reference) -> list[Path]:
-    """``metrics.parquet`` beside each sweep (its own runs, :func:`ttc.evaluation.sweep_metrics`)."""
+    """``metrics.parquet`` beside each sweep (its own runs, :func:`ttc.evaluation.sweep_metrics`;
+    ``reference`` a dict drive name → reference for sweeps over several drives, each run
+    against its own drive's, :func:`experiments.report.drives.sweep_metrics_by_drive`)."""
     written = []
     for d in data.dirs:
         runs = data.runs[data.runs["sweep_dir"] == str(d.resolve())]
@@ -29,7 +37,11 @@ def write_sweep_metrics(data: SweepData, reference) -> list[Path]:
             continue
         frames = data.frames[data.frames["run_id"].isin(runs["run_id"])]
         path = d / "metrics.parquet"
-        store.write_parquet_atomic(ev.sweep_metrics(frames, runs, reference), path)
+        if isinstance(reference, dict):
+            table = drives.sweep_metrics_by_drive(frames, runs, reference)
+        else:
+            table = ev.sweep_metrics(frames, runs, reference)
+        store.write_parquet_atomic(table, path)
         written.append(path)
     return written
 
@@ -59,6 +71,8 @@ def build_report(
     ctx = make_context(data_dir, cache_dir)
     out.mkdir(parents=True, exist_ok=True)
     lap("load")
+    if len(drives.split_by_recording(data)) > 1:
+        return build_drives_report(data, ctx, out, pictures, log, html)
     reference = reference_for(data, ctx)
     lap("reference")
     written = write_sweep_metrics(data, reference)
@@ -82,6 +96,38 @@ def build_report(
     log("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in times.items())
         + f"; {ctx.calls} pair details")  # fmt: skip
     return summary
+
+
+def build_drives_report(
+    data: SweepData,
+    ctx: Context,
+    out: Path,
+    pictures: bool = True,
+    log: Callable[[str], None] = print,
+    html: bool = True,
+) -> dict[str, Any]:
+    """:func:`build_report` of sweeps over several drives: metrics beside each sweep (each
+    run against its drive's reference), the reference, FP.5, FP.6 (and HTML) reports of each
+    drive in ``out/<drive>/``, and the per-drive and pooled rankings in ``out/drives.md``
+    (:mod:`experiments.report.drives`)."""
+    start = time.perf_counter()
+    references = drives.drive_references(data, ctx)
+    written = write_sweep_metrics(data, references)
+    for name, part in drives.split_by_recording(data).items():
+        folder, reference = out / name, references[name]
+        folder.mkdir(parents=True, exist_ok=True)
+        reference_writer.reference_report(part, reference, folder)
+        if part.frames.empty:
+            continue
+        fp5_table = fp5.fp5_report(part, reference, ctx, folder, pictures)
+        fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
+        if html:
+            html_report(part, reference, fp5_table, fp6_tables, folder)
+    table = drives.drives_report(data, references, out) if not data.frames.empty else None
+    log(f"metrics: {', '.join(map(str, written))}")
+    log(f"reports: {out}/drives.md and one folder per drive ({', '.join(references)})")
+    return {"metrics": written, "out": out, "drives": table, "pair_details": ctx.calls,
+            "times": {"total": time.perf_counter() - start}}  # fmt: skip
 
 
 def parser() -> argparse.ArgumentParser:

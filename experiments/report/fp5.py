@@ -110,6 +110,8 @@ def fp5_markdown(
         provenance_markdown(data, "FP.5: implausible lidar TTC estimates"),
         _rules_paragraph(),
         "",
+        ev.not_judged_text(reference),
+        "",
         "Camera settings per estimator in the sweeps (the lidar TTC uses the first): "
         + ", ".join(f"{k}: {v}" for k, v in settings.items())
         + ".",

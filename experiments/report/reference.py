@@ -39,6 +39,7 @@ def _facts(reference: pd.DataFrame) -> list[str]:
         f"Frame pairs whose finite reference TTC is too uncertain to judge a TTC on (relative "
         f"standard deviation above {ev.MAX_REF_REL_SD:.0%}; left out of the outlier rate and "
         f"the relative error, still judged by the motion-in-depth error): {listed}.",
+        ev.not_judged_text(reference),
     ]
 
 

@@ -12,7 +12,10 @@ submodules are the stages of judging:
 - :mod:`~ttc.evaluation.metrics`: those errors aggregated per run, per sensor and regime;
 - :mod:`~ttc.evaluation.ranking`: the ranking rule;
 - :mod:`~ttc.evaluation.bootstrap`: rank intervals from a moving-block bootstrap;
+- :mod:`~ttc.evaluation.drives`: several drives in one sweep, per drive and pooled;
 - :mod:`~ttc.evaluation.compare`: one setting in two sweeps;
+- :mod:`~ttc.evaluation.lead_status`: frames without one lead vehicle to judge against
+  (``no_lead``, ``lead_change``), which split the reference into segments;
 - :mod:`~ttc.evaluation.lead`: which box is the lead vehicle's (one rule for tables and
   pictures);
 - :mod:`~ttc.evaluation.diagnosis`, :mod:`~ttc.evaluation.lidar_diagnosis`,
@@ -31,6 +34,13 @@ from ttc.evaluation.bootstrap import (
     tied_for_first,
 )
 from ttc.evaluation.compare import COMPARED_METRICS, compare_runs
+from ttc.evaluation.drives import (
+    DRIVE_FRAME_STRIDE,
+    POOLED,
+    drive_rankings,
+    pooled_frames,
+    stack_drives,
+)
 from ttc.evaluation.errors import (
     CACHED_STAGE_INPUTS,
     FALSE_ALARM_S,
@@ -43,6 +53,15 @@ from ttc.evaluation.errors import (
     mid_error,
     stage_time_columns,
     with_compute_times,
+)
+from ttc.evaluation.lead_status import (
+    LEAD_CHANGE,
+    LEAD_STATUSES,
+    NO_LEAD,
+    lead_segments,
+    lead_status,
+    not_judged_frames,
+    not_judged_text,
 )
 from ttc.evaluation.metrics import judged_frames, run_metrics
 from ttc.evaluation.ranking import RANKING_KEYS, RANKING_RULE, rank_runs, ranking_time
@@ -143,6 +162,18 @@ __all__ = [
     "lead_distance_series",
     "lead_points",
     "lead_rows",
+    "DRIVE_FRAME_STRIDE",
+    "POOLED",
+    "drive_rankings",
+    "pooled_frames",
+    "stack_drives",
+    "LEAD_CHANGE",
+    "LEAD_STATUSES",
+    "NO_LEAD",
+    "lead_segments",
+    "lead_status",
+    "not_judged_frames",
+    "not_judged_text",
     "rank_runs",
     "ranking_time",
     "rear_distance",

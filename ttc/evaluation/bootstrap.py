@@ -4,7 +4,8 @@ Errors of consecutive frames are correlated: a box switch, a bad detection or a 
 integer-pinned keypoints lasts several frames. Resampling single frames treats 77 correlated
 frames as 77 independent ones and gives intervals that are too narrow. A replicate here
 concatenates blocks of ``block_length`` consecutive frames, starting at random positions
-(Künsch's moving-block bootstrap), until it holds as many frames as the recording; the same
+(Künsch's moving-block bootstrap), until it holds as many frames as the recording (over
+several drives: within each drive, :mod:`ttc.evaluation.drives`); the same
 frames are applied to every run (paired), so runs judged on the same hard frames stay
 comparable.
 
@@ -78,10 +79,25 @@ def block_length(mid: np.ndarray, invalid: np.ndarray) -> int:
     return int(np.clip(np.ceil(length), 1, n // 3))
 
 
-def block_draws(n: int, n_boot: int, length: int, rng: np.random.Generator) -> np.ndarray:
+def block_draws(
+    n: int,
+    n_boot: int,
+    length: int,
+    rng: np.random.Generator,
+    strata: np.ndarray | None = None,
+) -> np.ndarray:
     """Frame positions (n_boot × n) of moving-block replicates: blocks of ``length``
     consecutive positions from uniformly drawn starts, concatenated and cut to ``n``.
-    ``length`` 1 is the ordinary (independent) bootstrap."""
+    ``length`` 1 is the ordinary (independent) bootstrap. ``strata`` (n,), e.g. the drive of
+    each position: each stratum is resampled on its own from its own positions (a block never
+    spans two) and keeps its number of positions (:mod:`ttc.evaluation.drives`)."""
+    if strata is not None:
+        strata = np.asarray(strata)
+        parts = []
+        for value in pd.unique(strata):
+            own = np.flatnonzero(strata == value)
+            parts.append(own[block_draws(len(own), n_boot, length, rng)])
+        return np.concatenate(parts, axis=1)
     length = int(np.clip(length, 1, n))
     blocks = -(-n // length)
     starts = rng.integers(0, n - length + 1, size=(n_boot, blocks))
@@ -182,7 +198,11 @@ def bootstrap_rank_intervals(
     invalid = matrix(f"{sensor}_invalid") > 0.5
     mid, ms = matrix(f"{sensor}_mid"), matrix("ms_rank")
     length = block_length(mid, invalid) if block == "auto" else int(block)
-    draws = block_draws(mid.shape[1], n_boot, length, np.random.default_rng(seed))
+    strata = None  # several drives (stacked, :mod:`ttc.evaluation.drives`): within each
+    if "drive" in t:
+        columns = t.pivot(index="run_id", columns="frame", values="frame").columns
+        strata = t.groupby("frame")["drive"].first().reindex(columns).to_numpy()
+    draws = block_draws(mid.shape[1], n_boot, length, np.random.default_rng(seed), strata)
     values = replicate_metrics(invalid, mid, ms, draws)
     replicate_ranks = ranks(values["invalid_rate"], values["mid_median"], values.pop("ms"))
     values["outlier_rate"] = replicate_means(matrix(f"{sensor}_outlier"), draws)

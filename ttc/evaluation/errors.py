@@ -111,6 +111,10 @@ def _pair_reference(table: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFram
             ref["distance_sd_m"].reindex(prev).to_numpy() / d_prev
             + ref["distance_sd_m"].reindex(curr).to_numpy() / d_curr
         )
+    if "lead_segment" in ref:  # a pair spanning an empty lane or a change of lead: no ratio
+        seg_prev = ref["lead_segment"].reindex(prev).to_numpy()
+        seg_curr = ref["lead_segment"].reindex(curr).to_numpy()
+        d_prev = np.where((seg_prev == seg_curr) & (seg_curr >= 0), d_prev, np.nan)
     pair = two_frame_ttc(d_prev, d_curr, table["dt"].to_numpy(dtype=float), rel_sd)
     return pd.DataFrame(
         {

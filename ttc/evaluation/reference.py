@@ -29,6 +29,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ttc.evaluation.lead_status import lead_segments, lead_status
 from ttc.frames import SENSOR_RATE_HZ, frame_files, frame_indices, read_lidar_scan
 from ttc.lidar import LaneCropParams, crop_to_lane
 
@@ -315,8 +316,11 @@ def reference_ttc(
     speed is at most ``min_closing_speed``: "no collision course"), ``collision_course``,
     ``mid_ref_sd`` (standard deviation of ``MID_SCALE · ln ratio_ref``), ``ttc_ref_sd_s`` (s,
     finite references), ``judgeable`` (finite reference TTC with relative standard deviation
-    ≤ :data:`MAX_REF_REL_SD`), ``regime`` (:data:`REGIMES`) and ``noise_sd_m`` (the fit's
-    residual noise, one value). Frame ``min(frame)`` has no pair: NaN ratio and TTC.
+    ≤ :data:`MAX_REF_REL_SD`), ``regime`` (:data:`REGIMES`), ``noise_sd_m`` (the fit's
+    residual noise, one value per lead segment), ``lead`` (:data:`LEAD_STATUSES` of
+    :mod:`ttc.evaluation.lead_status`) and ``lead_segment``: frames without one lead vehicle
+    (with a ``scan_points`` column, a NaN distance in a complete scan is ``no_lead``) split the
+    recording; each segment is smoothed on its own and pairs across segments have no ratio. Frame ``min(frame)`` has no pair: NaN ratio and TTC.
 
     ``min_closing_speed`` = 0.1 m/s: a car closing at 0.1 m/s from 4.4 m is 44 s away: far
     beyond any warning horizon, so calling it "no collision course" loses nothing.
@@ -330,6 +334,49 @@ def reference_ttc(
     table = table.reindex(pd.Index(full, name="frame"))
     n = len(table)
     t = np.arange(n) * dt if times is None else np.asarray(times, dtype=float)
+    scans = table["scan_points"].to_numpy(dtype=float) if "scan_points" in table else None
+    status = lead_status(table["distance_m"].to_numpy(dtype=float), t, scans)
+    segment = lead_segments(status)
+    if not n or (segment == 0).all():  # one lead vehicle throughout
+        out = _segment_reference(table, t, window, polyorder, min_closing_speed)
+    else:
+        out = _segmented_reference(table, t, segment, window, polyorder, min_closing_speed)
+    out["lead"] = status
+    out["lead_segment"] = segment
+    return out
+
+
+def _segmented_reference(
+    table: pd.DataFrame,
+    t: np.ndarray,
+    segment: np.ndarray,
+    window: int,
+    polyorder: int,
+    min_closing_speed: float,
+) -> pd.DataFrame:
+    """:func:`_segment_reference` of each lead segment on its own; ``no_lead`` frames (segment
+    −1) get NaN distances and TTCs, no collision course, not judgeable, an empty regime."""
+    parts = [
+        _segment_reference(table[segment == s], t[segment == s], window, polyorder,
+                           min_closing_speed)
+        for s in np.unique(segment[segment >= 0])
+    ]  # fmt: skip
+    blank = table.assign(distance_m=table["distance_m"].astype(float)).reset_index()
+    out = pd.concat([*parts, blank[segment < 0]]).sort_values("frame").reset_index(drop=True)
+    out["time_s"], out["dt_s"] = t, np.r_[np.nan, np.diff(t)] if len(t) else t
+    for flag in ("distance_interpolated", "collision_course", "judgeable"):
+        out[flag] = out[flag].fillna(False).astype(bool) if flag in out else False
+    out["regime"] = out["regime"].fillna("") if "regime" in out else ""
+    return out
+
+
+def _segment_reference(
+    table: pd.DataFrame, t: np.ndarray, window: int, polyorder: int, min_closing_speed: float
+) -> pd.DataFrame:
+    """The reference of frames (``table`` indexed by frame, times ``t`` in s) followed by one
+    lead vehicle throughout (:func:`reference_ttc`'s columns but ``lead``)."""
+    table = table.copy()
+    n = len(table)
     raw = table["distance_m"].astype(float)
     measured = raw.notna().to_numpy()
     filled = raw.interpolate(limit_direction="both").to_numpy()

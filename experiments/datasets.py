@@ -1,0 +1,137 @@
+"""Dataset layouts: where a configured recording lies under the data root, and its frame range.
+
+Two layouts, one ``dataset.sequence`` (a folder under ``dataset.root``) for both:
+
+* the Udacity copy of drive 0052 (``kitti_0_18``, ``kitti_0_77``): ``kitti/2011_09_26`` holds
+  ``calib_*.txt``, ``image_02/data/`` and ``velodyne_points/data/``;
+* the official KITTI-raw layout (``kitti_raw``, keys ``date`` and ``drive``)::
+
+      <root>/kitti_raw/<date>/calib_cam_to_cam.txt, calib_velo_to_cam.txt
+      <root>/kitti_raw/<date>/<date>_drive_<drive>_sync/image_02/{data/*.png, timestamps.txt}
+      <root>/kitti_raw/<date>/<date>_drive_<drive>_sync/velodyne_points/{data/*.bin, timestamps.txt}
+
+  ``sequence`` is the drive folder (:func:`raw_sequence`, the ``kitti_raw_sequence`` resolver);
+  :func:`ttc.frames.calibration_dir` finds the calibration one folder up, and
+  :func:`ttc.frames.read_frame_times` the real timestamps. ``last: null`` is the drive's
+  last frame (:func:`last_frame`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+from ttc.frames import (
+    CAM_TO_CAM,
+    VELO_TO_CAM,
+    FrameDataError,
+    read_frame_times,
+    recording_frames,
+)
+
+#: Folder under the data root holding KITTI-raw dates in the official layout.
+RAW_FOLDER = "kitti_raw"
+#: The resolver the ``kitti_raw`` config builds ``dataset.sequence`` with.
+SEQUENCE_RESOLVER = "kitti_raw_sequence"
+
+
+def kitti_date(value: Any) -> str:
+    """A KITTI date as its folder name ``YYYY_MM_DD`` (Hydra and YAML read an unquoted
+    ``2011_09_26`` as the integer 20110926)."""
+    text = str(value).strip()
+    digits = text.replace("_", "").replace("-", "")
+    if len(digits) != 8 or not digits.isdigit():
+        raise ValueError(f"dataset.date={value!r}: expected a KITTI date like 2011_09_26")
+    return f"{digits[:4]}_{digits[4:6]}_{digits[6:]}"
+
+
+def kitti_drive(value: Any) -> str:
+    """A KITTI drive number as its four digits (``52`` and ``0052`` give ``0052``)."""
+    text = str(value).strip()
+    if not text.isdigit() or len(text) > 4:
+        raise ValueError(f"dataset.drive={value!r}: expected a drive number like 0052")
+    return text.zfill(4)
+
+
+def raw_sequence(date: Any, drive: Any) -> str:
+    """The drive folder under the data root: ``kitti_raw/<date>/<date>_drive_<drive>_sync``."""
+    day = kitti_date(date)
+    return f"{RAW_FOLDER}/{day}/{day}_drive_{kitti_drive(drive)}_sync"
+
+
+def register_resolvers() -> None:
+    """Register the ``kitti_raw_sequence`` resolver (idempotent)."""
+    if not OmegaConf.has_resolver(SEQUENCE_RESOLVER):
+        OmegaConf.register_new_resolver(SEQUENCE_RESOLVER, raw_sequence)
+
+
+def last_frame(sequence_dir: Path) -> int | None:
+    """The last frame index a recording folder holds; None when it holds none (or is absent)."""
+    present = recording_frames(sequence_dir)
+    return present[-1] if present else None
+
+
+def resolved_last(last: int | None, sequence_dir: Path) -> int | None:
+    """``dataset.last``, or for ``null`` the recording's last frame (None if it has none)."""
+    return int(last) if last is not None else last_frame(sequence_dir)
+
+
+def frame_range_last(last: int | None, sequence_dir: Path) -> int:
+    """:func:`resolved_last` for a frame range: raises :class:`ttc.frames.FrameDataError`
+    naming the folder when ``last`` is null and the recording holds no frames."""
+    resolved = resolved_last(last, sequence_dir)
+    if resolved is None:
+        raise FrameDataError(
+            sequence_dir,
+            "no frames found (image_02/data/NNNNNNNNNN.png); dataset.last=null "
+            "means the recording's last frame",
+        )
+    return resolved
+
+
+def dataset_identity(dataset: dict[str, Any], sequence_dir: Path) -> dict[str, Any]:
+    """The recorded ``dataset`` part of a setting (no root): ``date`` / ``drive`` in their
+    folder spelling and ``last: null`` resolved from the files, so a run over a whole drive
+    names the frames it covered (a drive with more frames later is a different run).
+    A Udacity-layout dataset (no ``date``) is returned unchanged."""
+    out = dict(dataset)
+    if out.get("date"):
+        out["date"], out["drive"] = kitti_date(out["date"]), kitti_drive(out["drive"])
+    if out.get("last") is None:
+        out["last"] = resolved_last(None, sequence_dir)
+    return out
+
+
+def layout_problems(date: str, sequence_dir: Path) -> list[str]:
+    """What is wrong with a KITTI-raw drive (``date`` set) beyond its frames, in words: it
+    must ship its real timestamps, readable and agreeing (:func:`ttc.frames.read_frame_times`
+    names the file and line), and its date folder the calibration. Nothing for a
+    Udacity-layout dataset (no ``date``), which runs at the nominal 10 Hz without them."""
+    if not date:
+        return []
+    problems = []
+    try:
+        if read_frame_times(sequence_dir) is None:
+            problems.append(
+                f"{sequence_dir}: no timestamps (velodyne_points/timestamps.txt or "
+                "image_02/timestamps.txt); a KITTI-raw drive is judged at its real frame times"
+            )
+    except FrameDataError as exc:
+        problems.append(str(exc))
+    for name in (CAM_TO_CAM, VELO_TO_CAM):
+        if not any((folder / name).is_file() for folder in (sequence_dir, sequence_dir.parent)):
+            problems.append(f"{sequence_dir.parent / name}: calibration file not found")
+    return problems
+
+
+def missing_drive_message(sequence_dir: Path) -> str:
+    """What to say when a KITTI-raw drive folder does not exist (nothing is downloaded)."""
+    return (
+        f"KITTI raw drive not found: {sequence_dir} does not exist.\n"
+        "KITTI raw needs registration at https://www.cvlibs.net/datasets/kitti/raw_data.php; "
+        "nothing downloads it. Unpack the date's calibration and the drive's synced+rectified "
+        f"archive under {sequence_dir.parents[1]} in the official layout (README, 'Any KITTI "
+        "raw drive'), or point TTC_DATA_DIR / dataset.root at a folder holding kitti_raw/."
+    )

@@ -1,0 +1,141 @@
+"""Sweeps over several drives: which run is on which drive, the setting shared by a setting's
+runs on every drive, and the drives report (``drives.md``, ``drives_ranking.csv``): metrics
+and rankings per drive and pooled (:mod:`ttc.evaluation.drives`). The FP.5 / FP.6 reports of
+each drive are written by :func:`experiments.report.cli.build_report` into ``<out>/<drive>/``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from experiments.config import setting_hash
+from experiments.reference_store import sequence_reference
+from experiments.report.encode import markdown_table, write_csv, write_text
+from experiments.report.header import provenance_markdown
+from experiments.report.load import Context, SweepData
+from ttc import evaluation as ev
+from ttc.pipeline import AXES
+
+#: ``dataset`` keys that name the drive and its frames: left out of the pooled setting id.
+DRIVE_KEYS = ("sequence", "date", "drive", "first", "last")
+#: Columns of ``drives_ranking.csv`` (per sensor: its ranking keys and outlier rate).
+RANKING_COLUMNS = ["drive", "rank", "rank_lo", "rank_hi", "setting", "run_id", *AXES,
+                   "n_frames", "n_judged"]  # fmt: skip
+
+
+def recording_of(runs: pd.DataFrame) -> pd.Series:
+    """The recording (``dataset.sequence``, a folder under the data root) of each run, by
+    run id."""
+    sequences = [json.loads(c)["dataset"]["sequence"] for c in runs["config"]]
+    return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
+
+
+def drive_name(sequence: str) -> str:
+    """A recording's short name: its folder without ``_sync``
+    (``kitti_raw/2011_09_26/2011_09_26_drive_0052_sync`` → ``2011_09_26_drive_0052``)."""
+    return Path(sequence).name.removesuffix("_sync")
+
+
+def setting_of(runs: pd.DataFrame) -> pd.Series:
+    """The id of each run's setting without its drive (:data:`DRIVE_KEYS` left out of the
+    stored setting's hash): equal for one setting's runs on every drive, by run id."""
+
+    def key(config: str) -> str:
+        setting = json.loads(config)
+        setting["dataset"] = {
+            k: v for k, v in setting["dataset"].items() if k not in DRIVE_KEYS
+        }  # fmt: skip
+        return setting_hash(setting)
+
+    return pd.Series([key(c) for c in runs["config"]], index=runs["run_id"].to_numpy())
+
+
+def split_by_recording(data: SweepData) -> dict[str, SweepData]:
+    """One :class:`SweepData` per recording of ``data`` (by drive name, sorted)."""
+    recording = recording_of(data.runs)
+    parts = {}
+    for sequence in sorted(set(recording)):
+        ids = set(recording.index[recording == sequence])
+        runs = data.runs[data.runs["run_id"].isin(ids)].reset_index(drop=True)
+        frames = data.frames
+        if not frames.empty:
+            frames = frames[frames["run_id"].isin(ids)].reset_index(drop=True)
+        parts[drive_name(sequence)] = SweepData(
+            data.dirs, frames, runs, data.overrides, data.repeated
+        )
+    return parts
+
+
+def drive_references(data: SweepData, ctx: Context) -> dict[str, pd.DataFrame]:
+    """The reference of every recording of ``data``, by drive name (sorted)."""
+    recording = recording_of(data.runs)
+    return {
+        drive_name(seq): sequence_reference(ctx.root / seq, ctx.cache)
+        for seq in sorted(set(recording))
+    }
+
+
+def sweep_metrics_by_drive(
+    frames: pd.DataFrame, runs: pd.DataFrame, references: dict[str, pd.DataFrame]
+) -> pd.DataFrame:
+    """:func:`ttc.evaluation.sweep_metrics` of the runs of each drive against its own
+    reference, with a ``drive`` column, concatenated (sorted by run id)."""
+    drive = recording_of(runs).map(drive_name)
+    parts = []
+    for name, reference in references.items():
+        ids = set(drive.index[drive == name])
+        mine = runs[runs["run_id"].isin(ids)]
+        if mine.empty:
+            continue
+        table = ev.sweep_metrics(frames[frames["run_id"].isin(ids)], mine, reference)
+        parts.append(table.assign(drive=name))
+    return pd.concat(parts, ignore_index=True).sort_values("run_id", ignore_index=True)
+
+
+def drives_table(
+    data: SweepData, references: dict[str, pd.DataFrame], sensor: str, n_boot: int = ev.N_BOOT
+) -> pd.DataFrame:
+    """:func:`ttc.evaluation.drive_rankings` of the ok runs of ``data`` on ``sensor``."""
+    ok = data.runs[data.runs["status"] == "ok"]
+    frames = data.frames[data.frames["run_id"].isin(ok["run_id"])]
+    drive = recording_of(ok).map(drive_name)
+    return ev.drive_rankings(
+        frames, drive.to_dict(), setting_of(ok).to_dict(), references, sensor, n_boot
+    )
+
+
+def drives_report(
+    data: SweepData, references: dict[str, pd.DataFrame], out: Path, n_boot: int = ev.N_BOOT
+) -> pd.DataFrame:
+    """Write ``drives_ranking.csv`` and ``drives.md``: per drive and pooled, every setting's
+    metrics and rank on the camera and the lidar; return the table."""
+    tables = []
+    for sensor in ("camera", "lidar"):
+        t = drives_table(data, references, sensor, n_boot)
+        keys = [f"{sensor}_{k}" for k in (*ev.RANKING_KEYS, "outlier_rate", "medae_rel")]
+        cols = [c for c in [*RANKING_COLUMNS, *keys] if c in t]
+        tables.append(t[cols].assign(sensor=sensor))
+    table = pd.concat(tables, ignore_index=True)
+    write_csv(table, out / "drives_ranking.csv")
+    lines = [
+        provenance_markdown(data, "Several drives: rankings per drive and pooled"),
+        f"Drives: {', '.join(references)} (each judged against its own reference; FP.5, FP.6 "
+        "and the reference of each drive in its folder). **Pooled**: every setting's frame "
+        "pairs of all drives together (medians and rates over all of them); its rank interval "
+        f"({ev.CI:.0%}) is a moving-block bootstrap resampling blocks of frames within each "
+        "drive.",
+        "",
+        ev.RANKING_RULE,
+        "",
+    ]
+    for name, reference in references.items():
+        lines += [f"- {name}: {ev.not_judged_text(reference)}"]
+    for sensor, t in zip(("camera", "lidar"), tables, strict=True):
+        for drive in [ev.POOLED, *references]:
+            part = t[t["drive"] == drive].drop(columns=["sensor", "drive"])
+            part = part.dropna(axis=1, how="all")
+            lines += ["", f"## {sensor}: {drive}", "", markdown_table(part)]
+    write_text("\n".join(lines) + "\n", out / "drives.md")
+    return table

@@ -1,0 +1,76 @@
+"""Several drives in one sweep: ``-m dataset=kitti_raw dataset.drive=0052,0040`` over two
+made-up drives (the shared frames 0–7, and 40–47 renumbered from 0) merges into one sweep;
+the report writes each drive's FP.5/FP.6 and the rankings per drive and pooled."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from experiments import store
+from experiments.report.cli import build_report
+from tests.test_kitti_raw import make_drive
+from tests.test_sweep import hydra_run
+from ttc import evaluation as ev
+
+DRIVES = {"0052": list(range(8)), "0040": list(range(40, 48))}
+NAMES = [f"2011_09_26_drive_{d}" for d in ("0040", "0052")]
+
+
+def test_stratified_blocks_stay_within_their_drive() -> None:
+    strata = np.array(["a"] * 5 + ["b"] * 7)
+    draws = ev.block_draws(12, 200, 3, np.random.default_rng(0), strata)
+    assert draws.shape == (200, 12)
+    assert (draws[:, :5] < 5).all() and (draws[:, 5:] >= 5).all()  # each drive's own frames
+    blocks = draws[:, 5:].reshape(200, -1)[:, :6].reshape(200, 2, 3)  # whole blocks of b
+    assert (np.diff(blocks, axis=2) == 1).all()  # consecutive frames, never across drives
+
+
+@pytest.fixture(scope="module")
+def two_drive_sweep(kitti_dir, tmp_path_factory) -> tuple[Path, Path]:
+    tmp = tmp_path_factory.mktemp("drives")
+    root = tmp / "data"
+    for drive, frames in DRIVES.items():
+        make_drive(kitti_dir, root, drive, frames)
+    args = ["-m", "dataset=kitti_raw", f"dataset.root={root}", "dataset.drive=0052,0040",
+            "lidar_ttc=median,closest", "sweep_name=drives"]  # fmt: skip
+    result = hydra_run(args, tmp)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return tmp / "sweeps" / "drives", root
+
+
+@pytest.mark.slow  # ~30 s: a Hydra multirun in a subprocess, two drive reports
+def test_a_two_drive_sweep_merges_and_reports_per_drive_and_pooled(two_drive_sweep, tmp_path):
+    sweep_dir, root = two_drive_sweep
+    runs = pd.read_parquet(sweep_dir / store.RUNS_FILE)
+    frames = pd.read_parquet(sweep_dir / store.FRAMES_FILE)
+    assert len(runs) == 4 and (runs["status"] == "ok").all() and runs["run_id"].is_unique
+    assert set(runs["dataset"]) == {"kitti_raw"}
+    assert len(frames[frames["is_lead"]]) == 4 * 7
+
+    build_report([sweep_dir], tmp_path, root, sweep_dir.parent.parent / "cache",
+                 pictures=False, html=False, log=lambda _: None)  # fmt: skip
+    metrics = pd.read_parquet(sweep_dir / "metrics.parquet")
+    assert sorted(metrics["drive"]) == sorted(NAMES * 2)  # each run against its own drive
+    for name in NAMES:
+        assert (tmp_path / name / "fp5_lidar.md").is_file()
+        assert (tmp_path / name / "fp6_camera.md").is_file()
+        assert (tmp_path / name / "reference.csv").is_file()
+
+    table = pd.read_csv(tmp_path / "drives_ranking.csv")
+    lidar = table[table["sensor"] == "lidar"]
+    assert sorted(lidar["drive"].unique()) == sorted([ev.POOLED, *NAMES])
+    assert (lidar.groupby("drive").size() == 2).all()  # two settings on every drive
+    pooled = lidar[lidar["drive"] == ev.POOLED].set_index("setting")
+    per_drive = lidar[lidar["drive"] != ev.POOLED]
+    assert (per_drive["n_frames"] == 7).all() and (pooled["n_frames"] == 14).all()
+    # pooled rates are over the frames of both drives (7 each): the mean of the drives'
+    invalid = per_drive.groupby("setting")["lidar_invalid_rate"].mean()
+    np.testing.assert_allclose(pooled["lidar_invalid_rate"], invalid.loc[pooled.index])
+    assert ((pooled["rank_lo"] <= pooled["rank"]) & (pooled["rank"] <= pooled["rank_hi"])).all()
+    assert set(pooled["lidar_ttc"]) == {"median", "closest"}
+    text = (tmp_path / "drives.md").read_text()
+    assert "## lidar: pooled" in text and f"## camera: {NAMES[1]}" in text
