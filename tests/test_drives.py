@@ -1,5 +1,6 @@
 """Several drives in one sweep: ``-m dataset=kitti_raw dataset.drive=0052,0040`` over two
-made-up drives (the shared frames 0–7, and 40–47 renumbered from 0) merges into one sweep;
+made-up drives (the shared frames 0–7, and 40–77 renumbered from 0: the stop and the
+truncated last scan) merges into one sweep;
 the report writes each drive's FP.5/FP.6 and the rankings per drive and pooled."""
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from tests.test_kitti_raw import make_drive
 from tests.test_sweep import hydra_run
 from ttc import evaluation as ev
 
-DRIVES = {"0052": list(range(8)), "0040": list(range(40, 48))}
+DRIVES = {"0052": list(range(8)), "0040": list(range(40, 78))}
 NAMES = [f"2011_09_26_drive_{d}" for d in ("0040", "0052")]
 
 
@@ -49,7 +50,7 @@ def test_a_two_drive_sweep_merges_and_reports_per_drive_and_pooled(two_drive_swe
     frames = pd.read_parquet(sweep_dir / store.FRAMES_FILE)
     assert len(runs) == 4 and (runs["status"] == "ok").all() and runs["run_id"].is_unique
     assert set(runs["dataset"]) == {"kitti_raw"}
-    assert len(frames[frames["is_lead"]]) == 4 * 7
+    assert len(frames[frames["is_lead"]]) == 2 * (7 + 37)
 
     build_report([sweep_dir], tmp_path, root, sweep_dir.parent.parent / "cache",
                  pictures=False, html=False, log=lambda _: None)  # fmt: skip
@@ -66,10 +67,14 @@ def test_a_two_drive_sweep_merges_and_reports_per_drive_and_pooled(two_drive_swe
     assert (lidar.groupby("drive").size() == 2).all()  # two settings on every drive
     pooled = lidar[lidar["drive"] == ev.POOLED].set_index("setting")
     per_drive = lidar[lidar["drive"] != ev.POOLED]
-    assert (per_drive["n_frames"] == 7).all() and (pooled["n_frames"] == 14).all()
-    # pooled rates are over the frames of both drives (7 each): the mean of the drives'
-    invalid = per_drive.groupby("setting")["lidar_invalid_rate"].mean()
-    np.testing.assert_allclose(pooled["lidar_invalid_rate"], invalid.loc[pooled.index])
+    n_frames = per_drive.groupby("drive")["n_frames"].first()
+    assert n_frames.to_dict() == {NAMES[0]: 37, NAMES[1]: 7}
+    assert (pooled["n_frames"] == 44).all()
+    # pooled rates are over the frames of both drives: their frame-weighted mean
+    weighted = (per_drive["lidar_invalid_rate"] * per_drive["n_frames"]).groupby(
+        per_drive["setting"]
+    ).sum() / 44
+    np.testing.assert_allclose(pooled["lidar_invalid_rate"], weighted.loc[pooled.index])
     assert ((pooled["rank_lo"] <= pooled["rank"]) & (pooled["rank"] <= pooled["rank_hi"])).all()
     assert set(pooled["lidar_ttc"]) == {"median", "closest"}
     text = (tmp_path / "drives.md").read_text()
