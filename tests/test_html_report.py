@@ -147,3 +147,19 @@ def test_html_report_in_headless_chromium(
                              "querySelectorAll('img')].every(i => i.complete && i.naturalWidth)")  # fmt: skip
         assert browser.errors == []
     assert time.monotonic() - start < 60
+
+
+def test_a_sweep_of_thousands_gives_pages_to_its_best_and_worst_only() -> None:
+    from experiments.report.html import paged_settings  # noqa: PLC0415
+    from experiments.report.html.pages import index_page  # noqa: PLC0415
+
+    rank = [10, 1, 2, 3, 4, 5, 6, 7, 8, 9]
+    ranking = pd.DataFrame({"dataset": "kitti_0_18", "setting": [f"s{i}" for i in range(10)],
+                            "rank": rank, "rank_lo": rank, "rank_hi": [r + 1 for r in rank],
+                            "way_off_frames": 1, "block_length": 2, "n_uncertain": 0})  # fmt: skip
+    assert paged_settings(ranking, best=20, worst=5) == {("kitti_0_18", f"s{i}") for i in range(10)}
+    paged = paged_settings(ranking, best=3, worst=2)
+    assert paged == {("kitti_0_18", s) for s in ("s1", "s2", "s3", "s9", "s0")}
+    html = index_page("", ranking, {}, paged)
+    assert 'href="settings/kitti_0_18__s1.html"' in html and "s5.html" not in html
+    assert "Pages of the 5 best and worst settings only; the other 5 are rows" in html

@@ -4,7 +4,9 @@ from disk with no server and no network.
 * ``index.html``: the camera ranking, sortable and filterable (DataTables, shipped by the
   :mod:`itables` package and copied into ``assets/``), each setting linked to its page;
 * ``settings/<dataset>__<setting>.html``: the setting's TTC series against the reference (an
-  inline SVG), its metrics, its way-off frames with their reasons, numbers and pictures;
+  inline SVG), its metrics, its way-off frames with their reasons, numbers and pictures; on a
+  sweep of thousands of settings (``grand``), pages of the :data:`BEST_PAGES` best and
+  :data:`WORST_PAGES` worst of each dataset only (the others are rows of the tables);
 * ``fp6.html``, ``fp5.html``, ``reference.html``: the FP.6 / FP.5 diagnoses and the reference;
 * ``pictures/fp6``, ``pictures/fp5``, ``img/``: the report's pictures and figures (the same
   bytes as beside the markdown, so git stores each once).
@@ -29,6 +31,23 @@ from ttc.atomic import write_bytes_atomic
 #: Figures of the markdown report shown on the HTML pages (copied into ``img/``).
 FIGURES = ("reference.png", "fp5_lidar_ttc.png", "fp6_heatmap.png", "fp6_ttc_series.png",
            "fp6_pareto.png", "fp6_rank_intervals.png")  # fmt: skip
+
+
+#: Settings of a dataset given a page: the best and the worst of its ranking.
+BEST_PAGES, WORST_PAGES = 250, 50
+
+
+def paged_settings(
+    ranking: pd.DataFrame, best: int = BEST_PAGES, worst: int = WORST_PAGES
+) -> set[tuple[str, str]]:
+    """The (dataset, setting) pairs of ``ranking`` (fp6_ranking rows) that get a page: every
+    one when a dataset has at most ``best + worst`` settings, else its ``best`` best ranked
+    and ``worst`` worst ranked."""
+    chosen: set[tuple[str, str]] = set()
+    for dataset, rows in ranking.sort_values("rank", kind="stable").groupby("dataset"):
+        keep = rows if len(rows) <= best + worst else pd.concat([rows.head(best), rows.tail(worst)])
+        chosen |= {(str(dataset), str(s)) for s in keep["setting"]}
+    return chosen
 
 
 def _copy_files(sources: list[Path], folder: Path) -> dict[str, str]:
@@ -57,15 +76,17 @@ def html_report(
     fp5_pictures = _copy_files(sorted((out / "fp5_pictures").glob("*.*")), folder / "pictures/fp5")
     t, ranking = fp6_tables if fp6_tables is not None else (None, None)
     provenance = pages.provenance_block(data)
-    write_text(pages.index_page(provenance, ranking, figures), folder / "index.html")
+    paged = paged_settings(ranking) if ranking is not None and not ranking.empty else set()
+    write_text(pages.index_page(provenance, ranking, figures, paged), folder / "index.html")
     write_text(pages.reference_page(provenance, reference, figures), folder / "reference.html")
     if t is not None and ranking is not None and not ranking.empty:
-        write_text(pages.fp6_page(provenance, t, fp6_pictures, figures), folder / "fp6.html")
+        write_text(pages.fp6_page(provenance, t, fp6_pictures, figures, paged),
+                   folder / "fp6.html")  # fmt: skip
         needed = ["dataset", "setting", "reason_text", *pages.FRAME_COLUMNS]
         by_setting = dict(list(t[needed].groupby(["dataset", "setting"], sort=False)))
         for _, row in ranking.iterrows():
             rows = by_setting.get((row["dataset"], row["setting"]))
-            if rows is None:
+            if rows is None or (row["dataset"], row["setting"]) not in paged:
                 continue
             path = folder / pages.setting_href(row["dataset"], row["setting"])
             write_text(pages.setting_page(row, rows, fp6_pictures), path)

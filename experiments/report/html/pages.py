@@ -62,6 +62,15 @@ def _link(href: str, text: object) -> str:
     return f'<a href="{esc(href)}">{esc(text)}</a>'
 
 
+def _setting_link(
+    dataset: str, setting: str, text: object, anchor: str, paged: set[tuple[str, str]]
+) -> str:
+    """``text`` linked to ``anchor`` on the setting's page, or plain when it has no page."""
+    if (dataset, setting) not in paged:
+        return esc(text)
+    return _link(setting_href(dataset, setting) + anchor, text)
+
+
 def provenance_block(data: SweepData) -> str:
     """The provenance header of the sweeps (:mod:`.header`) as HTML, folded."""
     body = markdown_html(provenance_markdown(data, "").partition("\n")[2])
@@ -84,9 +93,15 @@ def _figure(name: str | None, alt: str) -> str:
 # --------------------------------------------------------------------------- index
 
 
-def index_page(provenance: str, ranking: pd.DataFrame | None, figures: dict[str, str]) -> str:
+def index_page(
+    provenance: str,
+    ranking: pd.DataFrame | None,
+    figures: dict[str, str],
+    paged: set[tuple[str, str]],
+) -> str:
     """``index.html``: provenance, ranking rule, who is tied for first, the ranking table
-    (sortable, filterable; each setting links to its page) and the rank-interval figure."""
+    (sortable, filterable; each setting in ``paged`` links to its page) and the
+    rank-interval figure."""
     parts = [titled("TTC benchmark: ranking of the camera settings", provenance)]
     if ranking is None or ranking.empty:
         parts.append('<p>No camera setting ran: see <a href="fp5.html">FP.5 lidar</a>.</p>')
@@ -94,13 +109,16 @@ def index_page(provenance: str, ranking: pd.DataFrame | None, figures: dict[str,
     columns = [c for c in INDEX_COLUMNS if c in ranking and (c != "dataset"
                or ranking["dataset"].nunique() > 1)]  # fmt: skip
     shown = ranking[columns].copy()
-    shown["setting"] = [_link(setting_href(d, s), s)
+    shown["setting"] = [_setting_link(d, s, s, "", paged)
                         for d, s in zip(ranking["dataset"], ranking["setting"], strict=True)]  # fmt: skip
     shown["way_off_frames"] = [
-        _link(setting_href(d, s) + "#way-off", int(n))
+        _setting_link(d, s, int(n), "#way-off", paged)
         for d, s, n in zip(ranking["dataset"], ranking["setting"], ranking["way_off_frames"],
                            strict=True)
     ]  # fmt: skip
+    unpaged = len(ranking) - len(paged)
+    pages_note = (f" Pages of the {len(paged)} best and worst settings only; the other "
+                  f"{unpaged} are rows of this table." if unpaged > 0 else "")  # fmt: skip
     parts += [
         f"<p><strong>Ranking rule</strong> (<code>ttc.evaluation.RANKING_RULE</code>): "
         f"{inline(ev.RANKING_RULE)}</p>",
@@ -109,7 +127,7 @@ def index_page(provenance: str, ranking: pd.DataFrame | None, figures: dict[str,
         f'<h2 id="ranking-table">Ranking ({len(ranking)} settings)</h2>',
         "<p>Click a column header to sort, type in the search box or a column's filter below "
         "the table; click a setting for its TTC series, its way-off frames, their reasons and "
-        "pictures.</p>",
+        f"pictures.{pages_note}</p>",
         interactive_table(shown, "ranking", ["setting", "way_off_frames"]),
         _figure(figures.get("fp6_rank_intervals.png"), "rank intervals"),
     ]
@@ -120,16 +138,21 @@ def index_page(provenance: str, ranking: pd.DataFrame | None, figures: dict[str,
 
 
 def fp6_page(
-    provenance: str, t: pd.DataFrame, pictures: dict[str, str], figures: dict[str, str]
+    provenance: str,
+    t: pd.DataFrame,
+    pictures: dict[str, str],
+    figures: dict[str, str],
+    paged: set[tuple[str, str]],
 ) -> str:
     """``fp6.html``: what way off means and its rules, reason counts, the figures, and every
-    way-off setting × frame (filterable), each linked to its section of the setting's page."""
+    way-off setting × frame (filterable), each linked to its section of the setting's page
+    (settings in ``paged``)."""
     way = t[t["way_off"]].copy()
     codes = way["reasons"].str.split(";").explode().value_counts().rename_axis("reason")
     stems = [fp6.picture_stem(s, f) for s, f in zip(way["setting"], way["frame"], strict=True)]
     table = pd.DataFrame({
         "setting": way["setting"].to_numpy(),
-        "frame": [_link(f"{setting_href(d, s)}#f{int(f)}", int(f))
+        "frame": [_setting_link(d, s, int(f), f"#f{int(f)}", paged)
                   for d, s, f in zip(way["dataset"], way["setting"], way["frame"], strict=True)],
         "ttc_camera": way["ttc_camera"].to_numpy(), "ttc_ref_s": way["ttc_ref_s"].to_numpy(),
         "camera_rel_err": way["camera_rel_err"].to_numpy(),
