@@ -143,7 +143,12 @@ def summarise_sweep(
 
 def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> tuple:
     """(ranked settings, title): against the reference, else by the interim score."""
-    reference = sweep_reference(runs, data_dir, cache_dir)
+    if "ttc_true" in frames:  # a generated recording (dataset=scale_truth): its exact truth
+        from ttc.evaluation.truth import truth_reference  # noqa: PLC0415 (SciPy)
+
+        reference = truth_reference(frames)
+    else:
+        reference = sweep_reference(runs, data_dir, cache_dir)
     if reference is None:
         title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
         return interim_scores(frames), title

@@ -4,6 +4,9 @@ pipeline (real YOLO, SIFT, lidar estimators) on pairs made from two real frames.
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -12,6 +15,8 @@ import pandas as pd
 import pytest
 
 from experiments.scale_truth import materialise
+from tests.conftest import PROJECT_ROOT
+from ttc import evaluation as ev
 from ttc.batch import MEMBER, run_settings
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS
@@ -173,3 +178,53 @@ def test_lidar_estimators_against_the_truth(generated):
         assert (rel_error(dirty, "ttc_lidar") < 0.02).all(), dirty["ttc_lidar"].to_list()
     closest = by["closest"][by["closest"]["outliers_injected"] > 0]
     assert (rel_error(closest, "ttc_lidar") > 0.1).all(), closest["ttc_lidar"].to_list()
+
+
+def test_ranking_agreement_on_known_rankings():
+    """Kendall's tau of identical and of reversed rankings, the moves and the widths."""
+    settings = pd.DataFrame({"detector": list("abcd"), "descriptor": "x"})
+    same = settings.assign(rank=[1, 2, 3, 4], rank_lo=[1, 1, 2, 3], rank_hi=[2, 3, 4, 4])
+    summary, moves = ev.ranking_agreement(same, same, ["detector", "descriptor"], top=2)
+    assert summary["kendall_tau"] == pytest.approx(1.0) and (moves["move"] == 0).all()
+    assert summary["top_width_synthetic"] == pytest.approx((1 / 4 + 2 / 4) / 2)
+    reverse = same.assign(rank=[4, 3, 2, 1])
+    summary, moves = ev.ranking_agreement(reverse, same, ["detector", "descriptor"])
+    assert summary["kendall_tau"] == pytest.approx(-1.0) and summary["n_settings"] == 4
+    assert moves["move"].abs().iloc[0] == 3 and set(moves["detector"].iloc[:2]) == {"a", "d"}
+
+
+@pytest.mark.slow
+def test_small_sweep_outputs_carry_the_truth(tmp_path):
+    """A sweep on ``dataset=scale_truth`` through the command line (one source frame, two
+    lidar estimators): ``frames.parquet`` has the truth columns; the report writes metrics
+    per target TTC and overall, beside the sweep and in the report."""
+    env = {**os.environ, "TTC_RESULTS_DIR": str(tmp_path), "TTC_CACHE_DIR": str(tmp_path / "c")}
+    args = ["dataset=scale_truth", "dataset.last=3", "detector=fast", "descriptor=brief",
+            "lidar_ttc=median,closest", "sweep_name=st"]  # fmt: skip
+    done = subprocess.run([sys.executable, "-m", "experiments.run", "-m", *args],
+                          cwd=PROJECT_ROOT, env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    sweep = tmp_path / "st"
+    frames = pd.read_parquet(sweep / "frames.parquet")
+    assert set(TRUTH_COLUMNS) <= set(frames.columns)
+    assert frames.groupby("run_id")["frame"].nunique().eq(4).all()  # 1 source x 4 targets
+    assert sorted(frames["ttc_target"].unique()) == [3.0, 6.0, 12.0, 24.0]
+    real = PROJECT_ROOT / "results" / "kitti_0_18" / "fp6_ranking.csv"
+    report = subprocess.run([sys.executable, "-m", "experiments.report", str(sweep), "--out",
+                             str(tmp_path / "report"), "--real", str(real)],
+                            cwd=PROJECT_ROOT, env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert report.returncode == 0, report.stderr[-3000:]
+    by_target = pd.read_parquet(sweep / "metrics_by_target.parquet")
+    assert sorted(by_target["target"].unique()) == sorted(["all", "3 s", "6 s", "12 s", "24 s"])
+    assert by_target.groupby("run_id").size().eq(5).all()
+    for col in ("camera_mid_median", "camera_medae_rel", "camera_invalid_rate",
+                "lidar_mid_median", "lidar_medae_rel", "lidar_invalid_rate"):  # fmt: skip
+        assert col in by_target
+    overall = by_target[by_target["target"] == "all"]
+    assert overall["n_frames"].eq(4).all() and overall["lidar_mid_median"].notna().all()
+    metrics = pd.read_parquet(sweep / "metrics.parquet")  # ranked against the truth
+    assert metrics["n_judged"].eq(4).all()
+    ranking = pd.read_csv(tmp_path / "report" / "truth_ranking.csv")
+    assert {"rank_lo", "rank_hi", "camera_mid_median_3s", "camera_mid_median_24s"} <= set(ranking)
+    text = (tmp_path / "report" / "truth.md").read_text()
+    assert "Kendall's tau" in text and "4 generated pairs" in text
