@@ -146,14 +146,14 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> tupl
     if "ttc_true" in frames:  # a generated recording (dataset=scale_truth): its exact truth
         from ttc.evaluation.truth import truth_reference  # noqa: PLC0415 (SciPy)
 
-        reference = truth_reference(frames)
+        reference, against = truth_reference(frames), "the exact truth"
     else:
-        reference = sweep_reference(runs, data_dir, cache_dir)
+        reference, against = sweep_reference(runs, data_dir, cache_dir), "the reference"
     if reference is None:
         title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
         return interim_scores(frames), title
     sensor = ranked_sensor(runs[runs["status"] == "ok"])
-    title = f"on the {sensor} TTC against the reference (ttc.evaluation.RANKING_RULE)"
+    title = f"on the {sensor} TTC against {against} (ttc.evaluation.RANKING_RULE)"
     return ranked_runs(frames, reference, sensor), title
 
 
