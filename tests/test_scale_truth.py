@@ -21,7 +21,14 @@ from ttc import evaluation as ev
 from ttc.batch import MEMBER, run_settings
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS
-from ttc.frames import TRUTH_COLUMNS, TRUTH_FILE, frame_files, read_image, read_truth
+from ttc.frames import (
+    TRUTH_COLUMNS,
+    TRUTH_FILE,
+    frame_files,
+    frame_pairs,
+    read_image,
+    read_truth,
+)
 from ttc.keypoints import DETECTORS
 from ttc.lidar_ttc import LidarTTCParams
 from ttc.pipeline import FrameRange, Settings
@@ -230,3 +237,13 @@ def test_small_sweep_outputs_carry_the_truth(tmp_path):
     assert {"rank_lo", "rank_hi", "camera_mid_median_3s", "camera_mid_median_24s"} <= set(ranking)
     text = (tmp_path / "report" / "truth.md").read_text()
     assert "Kendall's tau" in text and "4 generated pairs" in text
+
+
+def test_disjoint_frame_pairs():
+    assert frame_pairs([0, 1, 2, 3]) == [(0, 1), (1, 2), (2, 3)]
+    assert frame_pairs([0, 1, 2, 3], "disjoint") == [(0, 1), (2, 3)]
+    assert FrameRange(Path("."), 0, 5, pairing="disjoint").pairs == [(0, 1), (2, 3), (4, 5)]
+    with pytest.raises(ValueError, match="even number"):
+        frame_pairs([0, 1, 2], "disjoint")
+    with pytest.raises(ValueError, match="pairing"):
+        frame_pairs([0, 1], "overlapping")

@@ -7,7 +7,7 @@ ratio of the pair is ``s = 1 + dt / T`` (constant velocity: ``TTC = dt / (s − 
 - **Images**: both made from the source image by the same resampling (:func:`scale_image`,
   ``cv2.warpAffine`` with one interpolation), so neither is favoured: the previous image scaled
   by ``s^(−1/2)`` and the current by ``s^(+1/2)`` about the lead vehicle's rear centre
-  (pixels), each then given its own random sub-pixel shift, contrast/brightness change and
+  (the centre of its box, pixels), each then given its own random sub-pixel shift, contrast/brightness change and
   Gaussian noise.
 - **Lidar**: the lead vehicle's points; forward coordinates (``x``, metres) multiplied by
   ``s^(+1/2)`` for the previous scan and ``s^(−1/2)`` for the current (``y``, ``z`` kept:
