@@ -108,10 +108,8 @@ def source_leads(
 
 def dataset_key(sequence_dir: Path, params: ScaleTruthParams) -> str:
     """The identity of a generated recording (module docstring), 64 hex digits."""
-    sources = [
-        (file_identity(frame_files(sequence_dir, k).image), file_identity(frame_files(sequence_dir, k).scan))
-        for k in params.sources
-    ]  # fmt: skip
+    files = [frame_files(sequence_dir, k) for k in params.sources]
+    sources = [(file_identity(f.image), file_identity(f.scan)) for f in files]
     calib = [file_identity(sequence_dir / name) for name in (CAM_TO_CAM, VELO_TO_CAM)]
     code = [
         hashlib.sha256(inspect.getsource(module).encode()).hexdigest()
@@ -124,9 +122,10 @@ def dataset_key(sequence_dir: Path, params: ScaleTruthParams) -> str:
 
 
 def consistent_points(pair: SyntheticPair, calib: Calibration, settings: Settings) -> np.ndarray:
-    """(N + n,) bool over :meth:`SyntheticPair.scans`: the points that the pipeline's rules keep in the lane crop
-    (:func:`ttc.lidar.lane_mask`) and assign to the lead box in both images of the pair (boxes: YOLO with ``settings.objects`` on the synthetic images;
-    :func:`ttc.lidar.assign_points_to_boxes` with ``settings.lidar_shrink``;
+    """(N + n,) bool over the rows of :meth:`SyntheticPair.scans`: the points the pipeline's
+    rules keep in both frames of the pair: inside the lane crop (:func:`ttc.lidar.lane_mask`)
+    and assigned to the lead box (YOLO with ``settings.objects`` on each synthetic image,
+    :func:`ttc.lidar.assign_points_to_boxes` with ``settings.lidar_shrink``,
     :func:`ttc.lidar.lead_box_of`). The scans keep only these, so both hold the same points
     and the distance ratio of any order statistic is exactly the truth's."""
     scans = pair.scans()
@@ -220,7 +219,7 @@ def _write_atomically(
 def params_from_config(dataset: DictConfig) -> ScaleTruthParams:
     """The generator parameters of a ``dataset`` config with a ``generator`` node (its
     ``first`` / ``last`` are the source frames)."""
-    node: dict[str, Any] = OmegaConf.to_container(dataset.generator, resolve=True)  # type: ignore[assignment]
+    node: dict[str, Any] = OmegaConf.to_container(dataset.generator, resolve=True)  # type: ignore
     node = {k: tuple(v) if isinstance(v, list) else v for k, v in node.items() if k != "name"}
     return ScaleTruthParams(first=int(dataset.first), last=int(dataset.last), **node)
 

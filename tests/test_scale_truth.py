@@ -201,6 +201,12 @@ def test_ranking_agreement_on_known_rankings():
     assert moves["move"].abs().iloc[0] == 3 and set(moves["detector"].iloc[:2]) == {"a", "d"}
 
 
+def run(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
+    """``python -m <args>`` from the project root."""
+    return subprocess.run([sys.executable, "-m", *args], cwd=PROJECT_ROOT, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+
+
 @pytest.mark.slow
 def test_small_sweep_outputs_carry_the_truth(tmp_path):
     """A sweep on ``dataset=scale_truth`` through the command line (one source frame, two
@@ -209,8 +215,7 @@ def test_small_sweep_outputs_carry_the_truth(tmp_path):
     env = {**os.environ, "TTC_RESULTS_DIR": str(tmp_path), "TTC_CACHE_DIR": str(tmp_path / "c")}
     args = ["dataset=scale_truth", "dataset.last=3", "detector=fast", "descriptor=brief",
             "lidar_ttc=median,closest", "sweep_name=st"]  # fmt: skip
-    done = subprocess.run([sys.executable, "-m", "experiments.run", "-m", *args],
-                          cwd=PROJECT_ROOT, env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+    done = run(["experiments.run", "-m", *args], env)
     assert done.returncode == 0, done.stderr[-3000:]
     sweep = tmp_path / "st"
     frames = pd.read_parquet(sweep / "frames.parquet")
@@ -219,9 +224,8 @@ def test_small_sweep_outputs_carry_the_truth(tmp_path):
     assert frames.groupby("run_id")["frame"].nunique().eq(4).all()  # 1 source x 4 targets
     assert sorted(frames["ttc_target"].unique()) == [3.0, 6.0, 12.0, 24.0]
     real = PROJECT_ROOT / "results" / "kitti_0_18" / "fp6_ranking.csv"
-    report = subprocess.run([sys.executable, "-m", "experiments.report", str(sweep), "--out",
-                             str(tmp_path / "report"), "--real", str(real)],
-                            cwd=PROJECT_ROOT, env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+    report = run(["experiments.report", str(sweep), "--out", str(tmp_path / "report"),
+                  "--real", str(real)], env)  # fmt: skip
     assert report.returncode == 0, report.stderr[-3000:]
     by_target = pd.read_parquet(sweep / "metrics_by_target.parquet")
     assert sorted(by_target["target"].unique()) == sorted(["all", "3 s", "6 s", "12 s", "24 s"])

@@ -7,8 +7,8 @@ ratio of the pair is ``s = 1 + dt / T`` (constant velocity: ``TTC = dt / (s − 
 - **Images**: both made from the source image by the same resampling (:func:`scale_image`,
   ``cv2.warpAffine`` with one interpolation), so neither is favoured: the previous image scaled
   by ``s^(−1/2)`` and the current by ``s^(+1/2)`` about the lead vehicle's rear centre
-  (the centre of its box, pixels), each then given its own random sub-pixel shift, contrast/brightness change and
-  Gaussian noise.
+  (the centre of its box, pixels), each then given its own random sub-pixel shift,
+  contrast/brightness change and Gaussian noise.
 - **Lidar**: the lead vehicle's points; forward coordinates (``x``, metres) multiplied by
   ``s^(+1/2)`` for the previous scan and ``s^(−1/2)`` for the current (``y``, ``z`` kept:
   the geometry of an approach), so the distance ratio of every point is exactly ``s``; then
@@ -46,7 +46,8 @@ class ScaleTruthParams:
 
     ``source_step``: every how-many-th real frame is a source (from ``first`` to ``last``);
     ``targets_s``: target TTCs (s) at the recording's nominal frame interval
-    (:func:`ttc.frames.frame_interval`, 0.1 s: a generated recording has no timestamps). Photometric:
+    (:func:`ttc.frames.frame_interval`, 0.1 s: a generated recording has no timestamps).
+    Photometric:
     ``noise_sigma`` (grey levels, Gaussian per pixel), ``contrast`` / ``brightness`` (each image
     gets a gain in ``1 ± contrast`` and an offset in ``± brightness`` grey levels),
     ``max_shift_px`` (uniform sub-pixel shift per image and axis, pixels). Lidar:
