@@ -23,7 +23,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import store
-from experiments.config import frame_range_from_config, settings_from_config
+from experiments.config import prepared_frame_range, settings_from_config
 from experiments.plan import read_plan
 from experiments.records import now, peak_rss_mb, record_head, row_statistics
 from ttc.batch import MEMBER, run_settings
@@ -92,7 +92,7 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
     valid = [i for i, s in enumerate(settings) if s is not None]
     rows = pd.DataFrame()
     try:
-        frames = frame_range_from_config(cfg)
+        frames = prepared_frame_range(cfg)
         inputs = store.input_identities(input_files(settings[valid[0]], frames)) if valid else ""
         cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)
         rows, failed = run_settings([settings[i] for i in valid], frames, cache)

@@ -65,6 +65,7 @@ class DatasetConfig:
     min_scan_points: int = 100_000
     date: str = ""  # kitti_raw: the KITTI date folder, e.g. 2011_09_26
     drive: str = ""  # kitti_raw: the drive number, e.g. 0052
+    generator: Any = None  # a generated dataset's parameters (dataset=scale_truth), else None
 
 
 @dataclass
@@ -181,6 +182,10 @@ def data_root(cfg: DictConfig) -> Path:
 def frame_range_from_config(cfg: DictConfig) -> FrameRange:
     """The core's :class:`FrameRange` for a composed config."""
     ds = cfg.dataset
+    if ds.get("generator") is not None:  # generated pairs (experiments/scale_truth.py)
+        from experiments.scale_truth import generated_frame_range
+
+        return generated_frame_range(cfg, data_root(cfg) / ds.sequence)
     sequence_dir = data_root(cfg) / ds.sequence
     return FrameRange(
         sequence_dir=sequence_dir,
@@ -190,6 +195,16 @@ def frame_range_from_config(cfg: DictConfig) -> FrameRange:
         projection=ds.projection,
         min_scan_points=ds.min_scan_points,
     )
+
+
+def prepared_frame_range(cfg: DictConfig) -> FrameRange:
+    """:func:`frame_range_from_config`, a generated dataset's recording written first when
+    missing (``dataset=scale_truth``): what a run reads."""
+    if cfg.dataset.get("generator") is not None:
+        from experiments.scale_truth import materialise_config
+
+        materialise_config(cfg, data_root(cfg) / cfg.dataset.sequence)
+    return frame_range_from_config(cfg)
 
 
 def setting_config(cfg: DictConfig) -> dict[str, Any]:
@@ -225,6 +240,7 @@ NEUTRAL_OPTIONS: tuple[tuple[str, str, Any], ...] = (
     ("fusion", "name", "none"),
     ("dataset", "date", ""),
     ("dataset", "drive", ""),
+    ("dataset", "generator", None),
 )
 
 

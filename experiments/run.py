@@ -45,8 +45,8 @@ from experiments.batch import run_batch
 from experiments.config import (
     config_problems,
     data_root,
-    frame_range_from_config,
     missing_data_message,
+    prepared_frame_range,
     register_configs,
     setting_config,
     setting_hash,
@@ -115,7 +115,7 @@ def _compute(cfg: DictConfig, sweep_dir: Path) -> dict[str, Any]:
     rows = None
     try:
         settings = settings_from_config(cfg)
-        frames = frame_range_from_config(cfg)
+        frames = prepared_frame_range(cfg)
         record["inputs"] = store.input_identities(input_files(settings, frames))
         cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)
         rows = run_setting(settings, frames, cache)

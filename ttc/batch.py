@@ -43,6 +43,7 @@ from ttc.frames import (
     pair_interval,
     read_frame_times,
     timestamps_file,
+    with_truth,
 )
 from ttc.keypoint_filter import filter_box_matches
 from ttc.keypoints import X, Y
@@ -137,7 +138,7 @@ def run_settings(
     for members in groups.values():
         rows = _group_rows(settings, members, frames, cache, indices, times, calib, failed)
         parts.extend(rows)
-    return _finish(settings, parts, failed), failed
+    return with_truth(_finish(settings, parts, failed), frames.sequence_dir), failed
 
 
 def _check_range(frames: FrameRange, calibration: Any) -> tuple[list[int], Any, Any]:

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 
 IMAGE_DIR = Path("image_02") / "data"
 LIDAR_DIR = Path("velodyne_points") / "data"
@@ -419,6 +420,58 @@ def frame_indices(first: int, last: int, step: int = 1) -> list[int]:
     if step < 1 or last < first or first < 0:
         raise ValueError(f"invalid frame range first={first} last={last} step={step}")
     return list(range(first, last + 1, step))
+
+
+#: How a frame range is cut into pairs: every frame with the next (``consecutive``: 0→1, 1→2,
+#: …) or frames two by two (``disjoint``: 0→1, 2→3, …; a generated recording of independent
+#: pairs, :mod:`ttc.scale_truth`).
+PAIRINGS = ("consecutive", "disjoint")
+
+
+def frame_pairs(indices: list[int], pairing: str = "consecutive") -> list[tuple[int, int]]:
+    """The (previous, current) frame pairs of ``indices`` under ``pairing`` (:data:`PAIRINGS`);
+    ``disjoint`` needs an even number of frames."""
+    if pairing == "consecutive":
+        return list(zip(indices[:-1], indices[1:], strict=True))
+    if pairing != "disjoint":
+        raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
+    if len(indices) % 2:
+        raise ValueError(f"disjoint pairs need an even number of frames, got {len(indices)}")
+    return list(zip(indices[0::2], indices[1::2], strict=True))
+
+
+#: A recording's truth table (generated recordings, :mod:`ttc.scale_truth`): one row per frame
+#: pair, labelled by its current ``frame``, with the columns of :data:`TRUTH_COLUMNS`.
+TRUTH_FILE = "truth.csv"
+#: Columns a truth table gives every row of its pair: the true TTC (s) and distance ratio
+#: d_prev / d_curr, the real frame the pair was made from, the target TTC (s) and the number
+#: of injected lidar outlier points.
+TRUTH_COLUMNS = ("source_frame", "ttc_target", "ttc_true", "ratio_true", "outliers_injected")
+
+
+def read_truth(sequence_dir: Path | str) -> pd.DataFrame | None:
+    """The recording's truth table (``frame`` and :data:`TRUTH_COLUMNS`), None when it has no
+    :data:`TRUTH_FILE`; :class:`FrameDataError` naming the file when a column is missing."""
+    path = Path(sequence_dir) / TRUTH_FILE
+    if not path.is_file():
+        return None
+    try:
+        table = pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        raise FrameDataError(path, f"unreadable truth table ({exc})") from exc
+    missing = [c for c in ("frame", *TRUTH_COLUMNS) if c not in table]
+    if missing:
+        raise FrameDataError(path, f"missing column(s) {', '.join(missing)}")
+    return table[["frame", *TRUTH_COLUMNS]]
+
+
+def with_truth(rows: pd.DataFrame, sequence_dir: Path | str) -> pd.DataFrame:
+    """``rows`` (one per frame pair × box pair) with the recording's :data:`TRUTH_COLUMNS` of
+    each row's pair (by ``frame``); unchanged when the recording has no truth table."""
+    truth = read_truth(sequence_dir)
+    if truth is None or rows.empty:
+        return rows
+    return rows.merge(truth, on="frame", how="left", validate="many_to_one")
 
 
 def frame_interval(step: int = 1, rate_hz: float = SENSOR_RATE_HZ) -> float:

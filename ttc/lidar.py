@@ -35,6 +35,11 @@ class LaneCropParams:
 
 def crop_to_lane(points: np.ndarray, crop: LaneCropParams) -> np.ndarray:
     """The rows of ``points`` (N × 4: x, y, z, reflectance) inside the lane crop."""
+    return points[lane_mask(points, crop)]
+
+
+def lane_mask(points: np.ndarray, crop: LaneCropParams) -> np.ndarray:
+    """(N,) bool: the rows of ``points`` (N × 4: x, y, z, reflectance) inside the lane crop."""
     x, y, z, r = points[:, 0], points[:, 1], points[:, 2], points[:, 3]
     keep = (
         (x >= crop.min_x)
@@ -44,7 +49,7 @@ def crop_to_lane(points: np.ndarray, crop: LaneCropParams) -> np.ndarray:
         & (z <= crop.max_z)
         & (r >= crop.min_reflectance)
     )
-    return points[keep]
+    return keep
 
 
 def project_to_image(xyz: np.ndarray, velo_to_image: np.ndarray) -> np.ndarray:

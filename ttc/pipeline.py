@@ -31,11 +31,13 @@ from ttc.frames import (
     frame_files,
     frame_indices,
     frame_interval,
+    frame_pairs,
     load_calibration,
     pair_interval,
     read_frame_times,
     read_image,
     timestamps_file,
+    with_truth,
 )
 from ttc.fusion import FusionParams, fuse_rows
 from ttc.keypoint_filter import KeypointFilterParams, filter_box_matches
@@ -106,6 +108,12 @@ class FrameRange:
     step: int = 1
     projection: str = "P_rect_02"
     min_scan_points: int = 100_000
+    pairing: str = "consecutive"  # or "disjoint": pairs 0→1, 2→3, … (ttc.frames.frame_pairs)
+
+    @property
+    def pairs(self) -> list[tuple[int, int]]:
+        """The (previous, current) frame pairs of the range."""
+        return frame_pairs(self.indices, self.pairing)
 
     @property
     def indices(self) -> list[int]:
@@ -196,7 +204,7 @@ def run_setting(
                 rows.extend(_pair_rows(settings, frames, calib, dt, prev, curr, per_frame, match))
             else:
                 rows.append(_error_row(prev, curr, dt, broken.get(curr) or broken[prev]))
-    return finish_rows(settings, pd.DataFrame.from_records(rows))
+    return with_truth(finish_rows(settings, pd.DataFrame.from_records(rows)), frames.sequence_dir)
 
 
 def finish_rows(settings: Settings, rows: pd.DataFrame) -> pd.DataFrame:

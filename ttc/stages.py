@@ -35,11 +35,13 @@ from ttc.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_bin
 from ttc.frames import (
     CAM_TO_CAM,
     TIMESTAMP_FILES,
+    TRUTH_FILE,
     VELO_TO_CAM,
     FrameDataError,
     calibration_dir,
     file_identity,
     frame_files,
+    frame_pairs,
     read_image,
     read_lidar_scan,
 )
@@ -210,6 +212,7 @@ def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     seq = Path(frames.sequence_dir)
     calib = calibration_dir(seq)
     files = [calib / CAM_TO_CAM, calib / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
+    files += [seq / TRUTH_FILE] if (seq / TRUTH_FILE).is_file() else []
     for index in frames.indices:
         ff = frame_files(seq, index)
         files += [ff.image, ff.scan]
@@ -254,7 +257,7 @@ def stream(
     stages = FrameStages(settings, frames, cache)
     per_frame: dict[str, dict[int, Lookup]] = {name: {} for name in PER_FRAME_STAGES}
     broken: dict[int, Exception] = {}
-    all_pairs = list(zip(indices[:-1], indices[1:], strict=True))
+    all_pairs = frame_pairs(indices, frames.pairing)
     for start in range(0, len(indices), CHUNK_FRAMES):
         todo = indices[start : start + CHUNK_FRAMES]
         resolve_frames(stages, todo, per_frame, broken)

@@ -13,7 +13,7 @@ from typing import Any
 import matplotlib
 
 from experiments import store
-from experiments.report import drives, fp5, fp6
+from experiments.report import drives, fp5, fp6, truth
 from experiments.report import reference as reference_writer
 from experiments.report.html import html_report
 from experiments.report.load import (
@@ -54,6 +54,7 @@ def build_report(
     pictures: bool = True,
     log: Callable[[str], None] = print,
     html: bool = True,
+    real: list[Path] | None = None,
 ) -> dict[str, Any]:
     """Metrics beside each sweep and both reports under ``out`` (with ``html``, the HTML
     report in ``out/html`` too); returns what was written and the seconds each step took."""
@@ -68,6 +69,10 @@ def build_report(
     data = load_sweeps(sweep_dirs)
     if data.runs.empty:
         raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
+    if ev.has_truth(data.frames):  # a generated recording: judged against its exact truth
+        summary = truth.truth_report(data, out, list(real or []))
+        log(f"metrics: {', '.join(map(str, summary['metrics']))}\nreport: {out / 'truth.md'}")
+        return summary
     ctx = make_context(data_dir, cache_dir)
     out.mkdir(parents=True, exist_ok=True)
     lap("load")
@@ -145,6 +150,9 @@ def parser() -> argparse.ArgumentParser:
                    help="stage cache (default: $TTC_CACHE_DIR or the configured one)")  # fmt: skip
     p.add_argument("--no-pictures", action="store_true", help="tables and plots only")
     p.add_argument("--no-html", action="store_true", help="no HTML report (out/html)")
+    p.add_argument("--real", type=Path, nargs="*", default=[],
+                   help="scale_truth sweeps: real-sequence fp6_ranking.csv files to compare "
+                   "the ranking with (Kendall's tau, the settings that move most)")  # fmt: skip
     return p
 
 
@@ -158,6 +166,6 @@ def main(argv: list[str] | None = None) -> None:
             p.error(f"{d} is not a folder")
     try:
         build_report(args.sweep_dirs, args.out, args.data_dir, args.cache_dir,
-                     not args.no_pictures, html=not args.no_html)  # fmt: skip
+                     not args.no_pictures, html=not args.no_html, real=args.real)  # fmt: skip
     except store.StoreError as exc:  # a corrupt or inconsistent results file, named
         sys.exit(f"report not written: {exc}")

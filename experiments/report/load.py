@@ -130,7 +130,10 @@ def make_context(data_dir: Path | None = None, cache_dir: Path | None = None) ->
 
 
 def reference_for(data: SweepData, ctx: Context) -> pd.DataFrame:
-    """The reference of the sweeps' recording (kept in the stage cache)."""
+    """The reference of the sweeps' recording (kept in the stage cache); a generated
+    recording's exact truth (:func:`ttc.evaluation.truth_reference`) when the rows carry one."""
+    if ev.has_truth(data.frames):
+        return ev.truth_reference(data.frames)
     return sequence_reference(ctx.root / sequence_of(data.runs), ctx.cache)
 
 

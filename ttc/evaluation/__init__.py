@@ -16,6 +16,8 @@ submodules are the stages of judging:
 - :mod:`~ttc.evaluation.compare`: one setting in two sweeps;
 - :mod:`~ttc.evaluation.lead_status`: frames without one lead vehicle to judge against
   (``no_lead``, ``lead_change``), which split the reference into segments;
+- :mod:`~ttc.evaluation.truth`: judging a generated recording against its exact truth, per
+  target TTC, and its ranking's agreement with a real sequence's;
 - :mod:`~ttc.evaluation.lead`: which box is the lead vehicle's (one rule for tables and
   pictures);
 - :mod:`~ttc.evaluation.diagnosis`, :mod:`~ttc.evaluation.lidar_diagnosis`,
@@ -145,6 +147,15 @@ from ttc.evaluation.lidar_diagnosis import (
     other_object_pairs,
     other_object_text,
 )
+from ttc.evaluation.truth import (
+    ALL_TARGETS,
+    TRUTH_METRICS,
+    has_truth,
+    ranking_agreement,
+    target_label,
+    truth_metrics,
+    truth_reference,
+)
 
 __all__ = [
     "CACHED_STAGE_INPUTS",
@@ -259,4 +270,12 @@ __all__ = [
     "pareto_front",
     "with_geometry_reasons",
     "worst_order",
+    # exact truth (generated recordings)
+    "ALL_TARGETS",
+    "TRUTH_METRICS",
+    "has_truth",
+    "ranking_agreement",
+    "target_label",
+    "truth_metrics",
+    "truth_reference",
 ]
