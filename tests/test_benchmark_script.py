@@ -29,7 +29,8 @@ def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
         assert key in report, key
     assert report["small_settings"] == 8
     assert report["missing"] == ["grand_cold_s", "grand_warm_s", "grand_peak_rss_mb",
-                                 "grand_report_s", "long_cold_s"]  # not run when reduced  # fmt: skip
+                                 "grand_peak_pss_mb", "grand_report_s",
+                                 "long_cold_s"]  # not run when reduced  # fmt: skip
     assert report["rerun_s"] < report["cold_s"]  # nothing to compute
     assert report["settings"] == 16 and report["status"] == {"ok": 16}
     stages = report["floor_ms_by_stage"]
