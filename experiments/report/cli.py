@@ -13,6 +13,7 @@ from typing import Any
 import matplotlib
 
 from experiments import store
+from experiments.provenance import code_version
 from experiments.report import drives, fp5, fp6, truth
 from experiments.report import reference as reference_writer
 from experiments.report.html import html_report
@@ -60,6 +61,8 @@ def build_report(
     report in ``out/html`` too); returns what was written and the seconds each step took."""
     times: dict[str, float] = {}
     start = last = time.perf_counter()
+    code_version()  # the report's code version before it writes anything (a report written
+    # into the repository would otherwise find the tree dirty with its own first files)
 
     def lap(name: str) -> None:
         nonlocal last
