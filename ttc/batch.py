@@ -37,12 +37,7 @@ from ttc.box_matching import count_shared_matches, match_boxes
 from ttc.cache import Lookup, StageCache
 from ttc.camera_ttc import camera_ttc
 from ttc.frames import (
-    FrameDataError,
-    check_frame_range,
-    load_calibration,
     pair_interval,
-    read_frame_times,
-    timestamps_file,
     with_truth,
 )
 from ttc.keypoint_filter import filter_box_matches
@@ -57,6 +52,7 @@ from ttc.pipeline import (
     Settings,
     _error_row,
     _timed,
+    check_range,
     check_setting,
     finish_rows,
     stream,
@@ -127,7 +123,7 @@ def run_settings(
     if not valid:
         return pd.DataFrame(), failed
     try:
-        indices, times, calib = _check_range(frames, calibration)
+        indices, times, calib = check_range(frames, calibration)
     except Exception as exc:  # the same for every setting
         return pd.DataFrame(), {**failed, **dict.fromkeys(valid, exc)}
     cache = cache if cache is not None else StageCache(None)
@@ -139,21 +135,6 @@ def run_settings(
         rows = _group_rows(settings, members, frames, cache, indices, times, calib, failed)
         parts.extend(rows)
     return with_truth(_finish(settings, parts, failed), frames.sequence_dir), failed
-
-
-def _check_range(frames: FrameRange, calibration: Any) -> tuple[list[int], Any, Any]:
-    """(frame indices, timestamps or None, calibration), raising as ``run_setting`` does."""
-    indices = frames.indices
-    if len(indices) < 2:
-        raise ValueError(f"need at least two frames, got {indices}")
-    check_frame_range(frames.sequence_dir, indices)
-    times = read_frame_times(frames.sequence_dir)
-    if times is not None and indices[-1] >= len(times):
-        raise FrameDataError(
-            timestamps_file(frames.sequence_dir),
-            f"{len(times)} timestamps: none for frame {indices[-1]}",
-        )
-    return indices, times, calibration or load_calibration(frames.sequence_dir, frames.projection)
 
 
 def _finish(

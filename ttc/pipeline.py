@@ -183,18 +183,8 @@ def run_setting(
     length of the range.
     """
     check_setting(settings)
-    indices = frames.indices
-    if len(indices) < 2:
-        raise ValueError(f"need at least two frames, got {indices}")
-    check_frame_range(frames.sequence_dir, indices)
-    times = read_frame_times(frames.sequence_dir)
-    if times is not None and indices[-1] >= len(times):
-        raise FrameDataError(
-            timestamps_file(frames.sequence_dir),
-            f"{len(times)} timestamps: none for frame {indices[-1]}",
-        )
+    indices, times, calib = check_range(frames, calibration)
     cache = cache if cache is not None else StageCache(None)
-    calib = calibration or load_calibration(frames.sequence_dir, frames.projection)
     rows: list[dict[str, Any]] = []
     for pairs, per_frame, matches, broken in stream(settings, frames, cache, indices):
         for prev, curr in pairs:
@@ -205,6 +195,26 @@ def run_setting(
             else:
                 rows.append(_error_row(prev, curr, dt, broken.get(curr) or broken[prev]))
     return with_truth(finish_rows(settings, pd.DataFrame.from_records(rows)), frames.sequence_dir)
+
+
+def check_range(
+    frames: FrameRange, calibration: Calibration | None = None
+) -> tuple[list[int], np.ndarray | None, Calibration]:
+    """(frame indices, frame times in s or None, calibration) of a run over ``frames``, checked
+    before any work: at least two frames, none past the recording's last, a timestamp for
+    each, a readable calibration (``calibration`` when given). Raises ValueError or
+    :class:`ttc.frames.FrameDataError` naming the file."""
+    indices = frames.indices
+    if len(indices) < 2:
+        raise ValueError(f"need at least two frames, got {indices}")
+    check_frame_range(frames.sequence_dir, indices)
+    times = read_frame_times(frames.sequence_dir)
+    if times is not None and indices[-1] >= len(times):
+        raise FrameDataError(
+            timestamps_file(frames.sequence_dir),
+            f"{len(times)} timestamps: none for frame {indices[-1]}",
+        )
+    return indices, times, calibration or load_calibration(frames.sequence_dir, frames.projection)
 
 
 def finish_rows(settings: Settings, rows: pd.DataFrame) -> pd.DataFrame:
