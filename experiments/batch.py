@@ -22,7 +22,7 @@ import cv2
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import store
+from experiments import progress, store
 from experiments.config import prepared_frame_range, settings_from_config
 from experiments.plan import read_plan
 from experiments.records import now, peak_rss_mb, record_head, row_statistics
@@ -55,7 +55,7 @@ def run_batch(cfg: DictConfig, sweep_dir: Path) -> list[dict[str, Any]]:
             todo.append({**member, "reason": reason})
         records = _compute(cfg, sweep_dir, todo) if todo else []
     outcomes = ["resumed"] * len(done) + [str(r["status"]) for r in records]
-    store.mark_progress(sweep_dir, cfg.batch, outcomes)
+    progress.mark_progress(sweep_dir, cfg.batch, outcomes)
     return done + records
 
 

@@ -25,13 +25,8 @@ from omegaconf import DictConfig
 from tqdm import tqdm
 
 from experiments.config import data_root
-from experiments.store import (
-    PROGRESS_DIR,
-    PROGRESS_ENV,
-    StoreError,
-    progress_dir,
-    progress_outcomes,
-)
+from experiments.progress import PROGRESS_DIR, PROGRESS_ENV, progress_dir, progress_outcomes
+from experiments.store import StoreError
 
 
 def count_jobs(config: DictConfig) -> int | None:

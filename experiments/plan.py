@@ -28,7 +28,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import store
+from experiments import progress, store
 from experiments.config import run_identity, setting_config
 from experiments.finished import plan_line
 from experiments.records import now, peak_rss_mb, record_head
@@ -226,7 +226,7 @@ def make_plan(
         else:
             todo.append(member)
     if plan.complete:
-        store.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * plan.complete)
+        progress.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * plan.complete)
     todo = _drop_invalid(todo, sweep_dir, config, plan)
     groups: dict[str, list[dict[str, Any]]] = {}
     for member in todo:
@@ -286,7 +286,7 @@ def _drop_invalid(
     with ThreadPoolExecutor(max_workers=8) as pool:  # file system calls, in parallel
         list(pool.map(write, skipped))
     if skipped:
-        store.mark_progress(sweep_dir, "invalid-pairs", ["skipped"] * len(skipped))
+        progress.mark_progress(sweep_dir, "invalid-pairs", ["skipped"] * len(skipped))
     plan.invalid = len(skipped)
     return keep
 
@@ -342,5 +342,5 @@ def finished_from_memory(sweep_dir: Path, key: str, config: DictConfig) -> Plan 
     for rid in run_ids:
         if f"{rid}.json" not in recorded or store.incomplete_reason(sweep_dir, rid, checks):
             return None
-    store.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * len(run_ids))
+    progress.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * len(run_ids))
     return Plan(settings=len(run_ids), complete=len(run_ids), run_ids=list(run_ids))

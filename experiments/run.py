@@ -40,7 +40,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from experiments import store
+from experiments import progress, store
 from experiments.batch import run_batch
 from experiments.config import (
     config_problems,
@@ -155,7 +155,7 @@ def record_crash(cfg: DictConfig, sweep_dir: Path, message: str) -> dict[str, An
 def mark_progress(sweep_dir: Path, record: dict[str, Any]) -> None:
     """Tell the sweep's progress bar and summary that this job is finished."""
     outcome = "resumed" if record.get("resumed") else str(record.get("status"))
-    store.mark_progress(sweep_dir, record["run_id"], [outcome])
+    progress.mark_progress(sweep_dir, record["run_id"], [outcome])
 
 
 SUMMARY_COLUMNS = ["frame", "curr_box", "ttc_lidar", "ttc_camera", "lidar_reason",

@@ -49,11 +49,6 @@ except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process lo
 RUNS_DIR = "runs"
 FRAMES_FILE = "frames.parquet"
 RUNS_FILE = "runs.parquet"
-#: Progress markers of a sweep (one file per finished job), read by the progress bar and the
-#: summary: ``.progress/<id of the sweep invocation>/``, named to the jobs by the variable
-#: :data:`PROGRESS_ENV`, so two sweeps into one folder count their own jobs.
-PROGRESS_DIR = ".progress"
-PROGRESS_ENV = "TTC_PROGRESS_DIR"
 COMPLETE_STATUSES = ("ok", "skipped")
 #: :func:`incomplete_reason` of a run never computed in this sweep folder.
 NO_RECORD = "no record"
@@ -113,32 +108,6 @@ def read_record(sweep_dir: Path, run_id: str) -> dict[str, Any] | None:
         return json.loads(record_path.read_text())
     except (OSError, ValueError):
         return None
-
-
-def progress_dir(sweep_dir: Path) -> Path:
-    """This sweep invocation's progress folder (``$TTC_PROGRESS_DIR`` when a sweep set it)."""
-    return Path(os.environ.get(PROGRESS_ENV) or Path(sweep_dir) / PROGRESS_DIR / "last")
-
-
-def mark_progress(sweep_dir: Path, name: str, outcomes: list[str]) -> None:
-    """Tell the sweep's progress bar and summary that settings are finished: one marker file
-    (``name``: a run id, a batch id) holding one outcome per setting (``ok``, ``skipped``,
-    ``failed``, ``resumed``), separated by spaces."""
-    marker = progress_dir(sweep_dir) / name
-    marker.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(marker, lambda tmp: tmp.write_text(" ".join(outcomes)))
-
-
-def progress_outcomes(progress: Path) -> list[str]:
-    """Every outcome in a progress folder's markers (see :func:`mark_progress`)."""
-    if not progress.is_dir():
-        return []
-    out: list[str] = []
-    for path in progress.iterdir():
-        if not path.name.startswith("."):
-            with contextlib.suppress(OSError):
-                out.extend(path.read_text().split())
-    return out
 
 
 # -- input identities ----------------------------------------------------------------------
