@@ -239,6 +239,17 @@ def make_plan(
     return plan
 
 
+def records_missing(sweep_dir: Path, jobs: Sequence[Sequence[str]]) -> bool:
+    """True when the sweep folder holds fewer run records than there are ``jobs``: some
+    setting certainly has none, so the sweep will compute (the sweeper then starts the
+    workers while it plans; a sweep that may be complete starts none)."""
+    runs_dir = Path(sweep_dir) / store.RUNS_DIR
+    if not runs_dir.is_dir():
+        return True
+    with os.scandir(runs_dir) as entries:
+        return sum(e.name.endswith(".json") for e in entries) < len(jobs)
+
+
 def _job(batch: list[dict[str, Any]], sweep_dir: Path, plan: Plan) -> list[str]:
     """The overrides of the job computing ``batch`` (writes its plan file when > 1)."""
     if len(batch) == 1:

@@ -68,6 +68,8 @@ def two_ways(tmp_path_factory) -> dict[str, object]:
 def test_batched_sweep_gives_the_rows_and_records_of_one_setting_per_job(two_ways) -> None:
     tmp = two_ways["tmp"]
     assert "to compute in 3 jobs (3 batches)" in two_ways["batched"].stdout
+    batched = two_ways["batched"]
+    assert "Starting 2 workers while the sweep is planned" in batched.stdout + batched.stderr
     assert "to compute in 24 jobs (0 batches)" in two_ways["single"].stdout
     frames_b, runs_b = store.load_sweep(tmp / "batched" / "grid")
     frames_s, runs_s = store.load_sweep(tmp / "single" / "grid")
@@ -104,6 +106,7 @@ def test_finished_sweep_launches_no_worker(two_ways, which) -> None:
     assert "sweep plan: 32 settings: 32 already complete (not launched)" in again.stdout
     assert "to compute in 0 jobs" in again.stdout
     assert "Launching" not in again.stderr + again.stdout  # the launcher was not called
+    assert "workers while the sweep is planned" not in again.stderr + again.stdout  # nor warmed
     assert "this invocation: 0 computed, 32 already complete" in again.stdout
     assert "settings: 32 total, 24 ok, 8 skipped, 0 failed" in again.stdout
     # only the identical command line is recognised before Hydra composes anything

@@ -11,6 +11,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from experiments.config import register_configs
+from experiments.plan import variant_jobs
 from hydra_plugins.ttc_launcher import JobComposer, shut_down_workers, worker_death
 from hydra_plugins.ttc_sweeper import group_combination_jobs, representative_jobs
 from tests.conftest import PROJECT_ROOT
@@ -50,6 +51,26 @@ def test_every_job_gets_hydras_config(loader_and_master) -> None:
         ), job
     # the template plus one variant per further value of each swept key; the rest are copies
     assert composer.full_compositions == 1 + 5
+
+
+def test_jobs_composed_from_the_sweepers_compositions(loader_and_master) -> None:
+    """Seeded with the sweeper's compositions (template + one variant per value), the
+    workers' composer composes nothing itself and still gives every job Hydra's config."""
+    loader, master = loader_and_master
+    jobs = [[f"detector={d}", f"descriptor={e}", f"matcher={m}", "lidar.shrink=0.2"]
+            for d, e, m in itertools.product(("fast", "sift", "orb"), ("brief", "akaze"),
+                                             ("bf", "flann"))]  # fmt: skip
+    known = {tuple(v): loader.load_sweep_config(master, v) for v in variant_jobs(jobs)}
+    assert len(known) == 1 + 2 + 1 + 1
+    composer = JobComposer(loader, master, known, template=jobs[0])
+    for job in jobs[::-1]:
+        cfg = composer.compose(job)
+        assert comparable(cfg) == comparable(loader.load_sweep_config(master, job)), job
+        cfg.hydra.job.num = 7  # the launcher sets it on the job's config: not on a shared one
+    batch = composer.compose([*jobs[3], "batch=batch-0123"])
+    assert batch.batch == "batch-0123" and batch.hydra.overrides.task[-1] == "batch=batch-0123"
+    assert composer.full_compositions == 0
+    assert all(OmegaConf.is_missing(c.hydra.job, "num") for c in known.values())
 
 
 def test_a_value_it_cannot_prove_local_goes_through_hydra(loader_and_master) -> None:

@@ -10,6 +10,11 @@ value; the planner reads the same compositions), plus one per distinct combinati
 value, and any value the ``validator`` (``experiments.config.validate_config``: parameter
 ranges, frame range, data present) refuses, fails with Hydra's message before any job runs.
 
+While it validates and plans a sweep that will compute something (some setting has no run
+record yet), the ttc launcher starts its workers (``warm_up``); the
+compositions it made are handed to the launcher (``share_compositions``), whose workers
+reuse them.
+
 Before launching, it plans the sweep (:mod:`experiments.plan`): settings whose run is
 complete are dropped (resume before launch: a finished sweep starts no worker), invalid
 detector × descriptor pairs are recorded as skipped once per pair, and the other settings
@@ -168,6 +173,8 @@ class TTCSweeper(BasicSweeper):
                     log.error(f"job {' '.join(r.overrides)} failed: {r._return_value}")
             initial_job_idx += len(jobs)
             returns.append(results)
+        if hasattr(self.launcher, "release"):  # workers warmed up for a plan with no job
+            self.launcher.release()
         return returns
 
     def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> list[list[str]]:
@@ -181,11 +188,16 @@ class TTCSweeper(BasicSweeper):
         assert self.config is not None
         key = planning.plan_key(batch, self.config)
         plan = planning.finished_from_memory(sweep_dir, key, self.config)
-        if plan is None:  # validate, then plan
+        if plan is None:  # validate, then plan (the launcher's workers start meanwhile)
+            if hasattr(self.launcher, "warm_up") and planning.records_missing(sweep_dir, batch):
+                self.launcher.warm_up()
             self.validate_batch_is_legal(batch)
             limit = max(1, self.max_settings_per_job)
-            plan = planning.make_plan(batch, self._planner(), self.config, sweep_dir, limit)
+            planner = self._planner()
+            plan = planning.make_plan(batch, planner, self.config, sweep_dir, limit)
             planning.remember_run_ids(sweep_dir, key, plan.run_ids)
+            if hasattr(self.launcher, "share_compositions") and planner.template is not None:
+                self.launcher.share_compositions(planner.template, planner.composer.memo)
         self.run_ids += plan.run_ids
         remember_command(sweep_dir, self.run_ids)  # python -m experiments.run checks it first
         print(plan.summary(), flush=True)
