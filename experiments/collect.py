@@ -12,8 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from experiments import progress, store
@@ -79,16 +77,22 @@ def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path |
 
 
 def lead_rows(sweep_dir: Path) -> pd.DataFrame:
-    """The lead vehicle's rows of a merged sweep, read a row group at a time (a filter on the
-    whole file reads every row first: 2.9 GB for ``grand``'s 3 million rows, 0.9 GB so)."""
+    """One row per run × frame pair of a merged sweep, the lead vehicle's
+    (:func:`ttc.evaluation.lead_rows`: else the pair's first row, its estimates blanked),
+    without the columns no metric reads (:data:`ttc.evaluation.NOT_JUDGED_COLUMNS`). Read a
+    row group at a time: the whole of ``grand``'s 3 million rows would take 2.9 GB."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+
     file = pq.ParquetFile(Path(sweep_dir) / store.FRAMES_FILE)
-    parts = []
-    for group in range(file.num_row_groups):
-        table = file.read_row_group(group)
-        parts.append(table.filter(pc.equal(table["is_lead"], True)))
+    columns = [c for c in file.schema_arrow.names if c not in ev.NOT_JUDGED_COLUMNS]
+    parts = [
+        ev.lead_rows(file.read_row_group(group, columns=columns).to_pandas())
+        for group in range(file.num_row_groups)
+    ]
     if not parts:
-        return file.schema_arrow.empty_table().to_pandas()
-    return pa.concat_tables(parts).to_pandas()
+        return file.schema_arrow.empty_table().select(columns).to_pandas()
+    # a run's rows of one frame pair may straddle two row groups: reduce once more
+    return ev.lead_rows(pd.concat(parts, ignore_index=True)) if len(parts) > 1 else parts[0]
 
 
 def summarise_sweep(

@@ -153,6 +153,11 @@ def read_rows(sweep_dir: Path, record: dict[str, Any]) -> pd.DataFrame:
 
 def _read_checked(path: Path, sha256: str | None) -> pd.DataFrame:
     """A rows file, its SHA-256 checked when given; :class:`StoreError` naming it."""
+    return _read_checked_table(path, sha256).to_pandas()
+
+
+def _read_checked_table(path: Path, sha256: str | None) -> pa.Table:
+    """:func:`_read_checked` as an Arrow table (as stored: no pandas round trip)."""
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -160,7 +165,7 @@ def _read_checked(path: Path, sha256: str | None) -> pd.DataFrame:
     if sha256 and hashlib.sha256(data).hexdigest() != sha256:
         raise StoreError(path, "rows file corrupt (SHA-256 differs from its record)")
     try:
-        return pd.read_parquet(io.BytesIO(data))
+        return pq.read_table(pa.BufferReader(data))
     except Exception as exc:  # pyarrow raises many types for damaged files
         raise StoreError(path, f"rows file corrupt ({type(exc).__name__}: {exc})") from None
 
@@ -267,9 +272,10 @@ def save_batch(
     """Store the runs of a batch: the rows of its ``ok`` runs in one file first, named
     ``<batch_id>-<first 12 hex digits of its SHA-256>.parquet`` (a later re-run of some of the
     batch's runs writes a new file and never touches the one other records point to), then
-    each run's record with ``rows_file``, ``rows_sha256`` and ``n_rows``."""
+    each run's record with ``rows_file``, ``rows_sha256`` and ``n_rows``. Rows are stored in
+    run id order (a stable sort: each run's rows keep theirs), the merged file's order."""
     if len(rows):
-        data = parquet_bytes(rows)
+        data = parquet_bytes(rows.sort_values("run_id", kind="stable", ignore_index=True))
         sha = hashlib.sha256(data).hexdigest()
         name = f"{batch_id}-{sha[:12]}.parquet"
         write_bytes_atomic(data, Path(sweep_dir) / RUNS_DIR / name)
@@ -283,7 +289,7 @@ def save_batch(
 def list_records(sweep_dir: Path) -> list[dict[str, Any]]:
     """Every readable run record of a sweep, sorted by run id."""
     records = []
-    for path in sorted((Path(sweep_dir) / RUNS_DIR).glob("*.json")):
+    for path in sorted((Path(sweep_dir) / RUNS_DIR).glob("*.json"), key=lambda p: p.name):
         with contextlib.suppress(ValueError, OSError):
             records.append(json.loads(path.read_text()))
     return records
@@ -368,7 +374,7 @@ def _file_table(path: Path, records: list[dict[str, Any]]) -> pa.Table:
     sha = records[0].get("rows_sha256")
     if any(r.get("rows_sha256") != sha for r in records):
         raise StoreError(path, "records disagree on the rows file's SHA-256")
-    table = pa.Table.from_pandas(_read_checked(path, sha), preserve_index=False)
+    table = _read_checked_table(path, sha)
     if not any(r.get("rows_file") for r in records):  # a run's own file
         if table.num_rows != records[0].get("n_rows", table.num_rows):
             raise StoreError(path, f"{table.num_rows} rows, its record says {records[0]['n_rows']}")
@@ -421,7 +427,7 @@ def _write_frames(path: Path, files: list[tuple[Path, list]], schema: pa.Schema)
 
         for rows_file, records in files:
             table = _conform(_file_table(rows_file, records), schema)
-            if len({r["run_id"] for r in records}) > 1:
+            if len({r["run_id"] for r in records}) > 1 and not _sorted(table["run_id"]):
                 table = table.take(pc.sort_indices(table, [("run_id", "ascending")]))
             for key, piece in _partitions(table):
                 if key != buffered_key or sum(t.num_rows for t in buffer) >= ROW_GROUP_ROWS:
@@ -429,6 +435,12 @@ def _write_frames(path: Path, files: list[tuple[Path, list]], schema: pa.Schema)
                 buffer.append(piece)
                 buffered_key = key
         flush()
+
+
+def _sorted(column: pa.ChunkedArray) -> bool:
+    """True when ``column`` is in ascending order (batches store their rows so)."""
+    values = column.combine_chunks()
+    return len(values) < 2 or pc.all(pc.less_equal(values[:-1], values[1:])).as_py()
 
 
 def _partitions(table: pa.Table) -> Iterator[tuple[tuple, pa.Table]]:

@@ -98,6 +98,9 @@ def test_batched_sweep_gives_the_rows_and_records_of_one_setting_per_job(two_way
     # one rows file per batch, named by the records that point to it
     files = {r["rows_file"] for r in records_b.values() if r["status"] == "ok"}
     assert len(files) == 3 and all(f.startswith("batch-") for f in files)
+    for name in files:  # stored in run id order: the merge need not sort them
+        ids = pq.read_table(tmp / "batched" / "grid" / store.RUNS_DIR / name, columns=["run_id"])
+        assert ids["run_id"].to_pylist() == sorted(ids["run_id"].to_pylist())
 
 
 @pytest.mark.parametrize("which", ["again", "remembered"])
@@ -232,3 +235,19 @@ def _kill_holders(sweep: Path, proc: subprocess.Popen) -> list[int]:
                     pass
         time.sleep(0.01)
     return killed
+
+
+def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir) -> None:
+    """The end-of-sweep summary reads only the lead rows and the columns the metrics read
+    (:func:`experiments.collect.lead_rows`); its ranking is the ranking of every row."""
+    from experiments.collect import lead_rows, ranked_runs
+    from experiments.reference_store import runs_reference
+
+    sweep = two_ways["tmp"] / "batched" / "grid"
+    frames, runs = store.load_sweep(sweep)
+    reference = runs_reference(runs[runs["status"] == "ok"], data_dir, two_ways["tmp"] / "cache")
+    few = lead_rows(sweep)
+    assert len(few) < len(frames) and "git_commit" not in few
+    whole = ranked_runs(frames, reference, "camera")
+    assert len(whole) == 24
+    pd.testing.assert_frame_equal(ranked_runs(few, reference, "camera"), whole)

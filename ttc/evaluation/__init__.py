@@ -46,6 +46,7 @@ from ttc.evaluation.drives import (
 from ttc.evaluation.errors import (
     CACHED_STAGE_INPUTS,
     FALSE_ALARM_S,
+    NOT_JUDGED_COLUMNS,
     OUTLIER_REL,
     SENSORS,
     WARNING_TTC_S,
@@ -172,6 +173,7 @@ __all__ = [
     "frame_errors",
     "lead_distance_series",
     "lead_points",
+    "NOT_JUDGED_COLUMNS",
     "lead_rows",
     "DRIVE_FRAME_STRIDE",
     "POOLED",

@@ -52,6 +52,15 @@ FALSE_ALARM_S = 10.0
 WARNING_TTC_S = 8.0
 #: Time columns derived from the stage times, never summed into them.
 DERIVED_TIME_COLUMNS: tuple[str, ...] = ("ms_per_frame", "ms_compute_per_frame")
+#: Columns of a sweep's rows that no metric reads (provenance and per-pair diagnostics of
+#: the FP.5/FP.6 reports): a summary of a sweep of millions of rows leaves them unread.
+NOT_JUDGED_COLUMNS: tuple[str, ...] = (
+    "git_commit", "error", "scan_points_prev", "scan_dropped_curr", "lane_points_curr",
+    "boxes_prev", "boxes_curr", "keypoints_prev", "described_curr", "matches_total",
+    "box_class", "box_confidence", "box_x", "box_y", "lidar_points_prev",
+    "lidar_outliers_prev", "lidar_outliers_curr", "lidar_closest_prev", "lidar_closest_curr",
+    "lidar_median_prev", "camera_pairs", "box_shared_matches", "ttc_fused_sd", "fused_reason",
+)  # fmt: skip
 #: Reference columns joined onto each judged row.
 REFERENCE_COLUMNS: tuple[str, ...] = (
     "ttc_ref_s",
