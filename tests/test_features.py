@@ -364,3 +364,22 @@ def test_empty_and_tiny_inputs(matcher: str, binary: bool) -> None:
     idx, dist = knn_candidates(desc, desc, binary, MatcherParams(name="bf"))
     np.testing.assert_array_equal(idx[:, 0], np.arange(5))  # every descriptor finds itself
     assert np.all(dist[:, 0] == 0)
+
+
+@pytest.mark.parametrize("descriptor", RUBRIC_DESCRIPTORS)
+def test_a_shared_extractor_describes_as_a_new_one(grays, descriptor: str) -> None:
+    """One extractor object per (params, detector) and process describes every frame as a
+    freshly made one (no state carried over from the previous image)."""
+    from ttc.descriptors import make_extractor, shared_extractor
+
+    detector = descriptor if descriptor in ("akaze", "sift") else "orb"
+    params = DESCRIPTORS[descriptor]()
+    assert shared_extractor(params, detector) is shared_extractor(
+        DESCRIPTORS[descriptor](), detector
+    )
+    for gray in (*grays, grays[0]):
+        kps = detect_keypoints(gray, DETECTORS[detector]())
+        kept, desc = describe_keypoints(gray, kps, detector, params)  # the shared object
+        fresh_kept, fresh = make_extractor(params, detector).compute(gray, array_to_keypoints(kps))
+        np.testing.assert_array_equal(kept, keypoints_to_array(fresh_kept))
+        np.testing.assert_array_equal(desc, fresh)

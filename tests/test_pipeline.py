@@ -134,3 +134,32 @@ def test_real_frame_times_set_dt(kitti_dir: Path, tmp_path: Path, cache_dir: Pat
         np.testing.assert_allclose(timed[column], expected, rtol=1e-12)
         assert np.isfinite(timed[column]).sum() >= 3
     pd.testing.assert_series_equal(timed["lidar_reason"], nominal["lidar_reason"])
+
+
+def test_a_frames_grey_image_is_decoded_once_per_file_content(kitti_dir, tmp_path) -> None:
+    """:func:`ttc.stages.gray_image`: decoded once per process and file content; the file
+    changed (new bytes, new mtime) is decoded again; the shared image is read-only."""
+    import os
+    import shutil
+
+    import cv2
+
+    from ttc.frames import read_image
+    from ttc.stages import gray_image
+
+    path = tmp_path / "frame.png"
+    shutil.copy(kitti_dir / "image_02" / "data" / "0000000000.png", path)
+    decoded = []
+
+    def decode():
+        decoded.append(path)
+        return read_image(path)
+
+    first = gray_image(path, decode)
+    assert gray_image(path, decode) is first and len(decoded) == 1
+    assert not first.flags.writeable
+    np.testing.assert_array_equal(first, cv2.cvtColor(read_image(path), cv2.COLOR_BGR2GRAY))
+    shutil.copy(kitti_dir / "image_02" / "data" / "0000000001.png", path)
+    os.utime(path, ns=(1, 1))
+    second = gray_image(path, decode)
+    assert len(decoded) == 2 and not np.array_equal(second, first)

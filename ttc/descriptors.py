@@ -26,6 +26,7 @@ lacks raises :class:`FeatureUnavailableError` (a skip, like an invalid pair) bef
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -337,6 +338,22 @@ def make_extractor(params: Any, detector_name: str = "") -> Any:
     return _EXTRACTORS[params.name](params)
 
 
+@functools.lru_cache(maxsize=64)
+def _shared_extractor(params: Any, detector_name: str) -> Any:
+    return make_extractor(params, detector_name)
+
+
+def shared_extractor(params: Any, detector_name: str = "") -> Any:
+    """:func:`make_extractor`'s object, made once per (params, detector) in this process:
+    OpenCV builds BRISK's sampling pattern (~40 ms) when the object is made, more than
+    describing a frame. ``compute()`` keeps no state between images; one object per thread
+    (the harness runs one thread per process). Unhashable parameters get a new object."""
+    try:
+        return _shared_extractor(params, detector_name)
+    except TypeError:  # unhashable parameters (a user's dataclass with a list)
+        return make_extractor(params, detector_name)
+
+
 def _empty_descriptors(extractor: Any) -> np.ndarray:
     dtype = np.float32 if extractor.descriptorType() == cv2.CV_32F else np.uint8
     return np.empty((0, extractor.descriptorSize()), dtype=dtype)
@@ -356,7 +373,7 @@ def describe_keypoints(
     check_gray(gray)
     if params.name == USER:
         return describe_custom(gray, keypoints, params)
-    extractor = make_extractor(params, detector_name)
+    extractor = shared_extractor(params, detector_name)
     if len(keypoints) == 0:
         return empty_keypoints(), _empty_descriptors(extractor)
     image = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR) if params.name in COLOUR_DESCRIPTORS else gray

@@ -23,6 +23,7 @@ before the option existed stay valid; a ``custom`` stage's key holds the hash of
 from __future__ import annotations
 
 import dataclasses
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -83,6 +84,29 @@ CHUNK_FRAMES = 8
 PER_FRAME_STAGES = ("objects", "lidar", "keypoints", "descriptors")
 
 
+#: Most bytes of decoded grey images a process keeps (a 1242 × 375 KITTI frame: 0.47 MB).
+GRAY_MEMORY_BYTES = 64 * 2**20
+#: Grey images decoded in this process, by image file identity, least recently used first.
+_GRAYS: OrderedDict[tuple[str, int, int], np.ndarray] = OrderedDict()
+
+
+def gray_image(path: Path, decode: Callable[[], np.ndarray]) -> np.ndarray:
+    """The grey image (H × W uint8, read-only) of image file ``path``: ``decode()`` (its BGR
+    image) converted once per process and file content (:func:`ttc.frames.file_identity`).
+    A batch of settings reads each frame's image once per detector and descriptor: decoding
+    the PNG again cost more than describing it with a fast descriptor."""
+    ident = file_identity(path)
+    gray = _GRAYS.get(ident)
+    if gray is None:
+        gray = cv2.cvtColor(decode(), cv2.COLOR_BGR2GRAY)
+        gray.flags.writeable = False
+        _GRAYS[ident] = gray
+        while sum(g.nbytes for g in _GRAYS.values()) > GRAY_MEMORY_BYTES and len(_GRAYS) > 1:
+            _GRAYS.popitem(last=False)
+    _GRAYS.move_to_end(ident)
+    return gray
+
+
 class FrameStages:
     """Cache tasks of one job, created lazily and shared between the pairs that need them.
 
@@ -112,7 +136,8 @@ class FrameStages:
 
     def _gray(self, index: int) -> np.ndarray:
         if index not in self._grays:
-            self._grays[index] = cv2.cvtColor(self._image(index), cv2.COLOR_BGR2GRAY)
+            path = frame_files(self.frames.sequence_dir, index).image
+            self._grays[index] = gray_image(path, lambda: self._image(index))
         return self._grays[index]
 
     def _task(self, stage: str, ident: tuple, parts: Callable[[], tuple], compute) -> Task:
