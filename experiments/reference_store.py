@@ -38,11 +38,11 @@ def _reference_key(sequence_dir: Path, last: int, times: np.ndarray | None) -> s
     return cache_key("reference", REFERENCE_CACHE_VERSION, source, scans, clock)
 
 
-def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
-    """Reference TTC over every frame of the recording (:func:`reference_for_sequence`), at
-    the recording's real frame times when it ships a ``timestamps.txt``
-    (:func:`ttc.frames.read_frame_times`), kept in the stage cache (key: the scans'
-    identities, the frame times and ``ttc/evaluation/reference.py``'s source)."""
+def reference_task(sequence_dir: Path) -> Task:
+    """The stage-cache task of the reference TTC over every frame of the recording
+    (:func:`reference_for_sequence`), at the recording's real frame times when it ships a
+    ``timestamps.txt`` (:func:`ttc.frames.read_frame_times`); key: the scans' identities, the
+    frame times and ``ttc/evaluation/reference.py``'s source."""
     last = len(list((Path(sequence_dir) / LIDAR_DIR).glob("*.bin"))) - 1
     if last < 1:
         raise FileNotFoundError(f"no lidar scans under {Path(sequence_dir) / LIDAR_DIR}")
@@ -59,8 +59,13 @@ def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
             for c in ref.columns
         }
 
-    key = _reference_key(Path(sequence_dir), last, times)
-    return pd.DataFrame(cache.get(Task("reference", key, compute)).arrays)
+    return Task("reference", _reference_key(Path(sequence_dir), last, times), compute)
+
+
+def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
+    """Reference TTC over every frame of the recording (:func:`reference_task`), from the
+    stage cache when it holds it."""
+    return pd.DataFrame(cache.get(reference_task(sequence_dir)).arrays)
 
 
 def runs_reference(

@@ -54,6 +54,7 @@ from experiments.config import (
 )
 from experiments.first_run import ensure_data
 from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
+from experiments.warm_up import warm_up  # noqa: F401 (the ttc launcher's workers call it)
 from ttc.cache import StageCache
 from ttc.descriptors import InvalidCombinationError
 from ttc.pipeline import AXES, input_files, run_setting

@@ -244,6 +244,14 @@ def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     return files + [Path(path) for path, _, _ in model_identity(settings.objects)]
 
 
+def shared_frame_tasks(settings: Settings, frames: FrameRange, cache: StageCache) -> list[Task]:
+    """The cache tasks every setting over ``frames`` with these objects and lane crop
+    shares, whatever its features: each frame's objects and lane points (a cold sweep
+    computes them first, e.g. while it is being planned)."""
+    stages = FrameStages(settings, frames, cache)
+    return [task for i in frames.indices for task in (stages.objects(i), stages.lidar(i))]
+
+
 def resolve_frames(
     stages: FrameStages,
     todo: list[int],

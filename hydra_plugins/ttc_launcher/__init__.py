@@ -21,7 +21,9 @@ This launcher runs the same jobs with the same joblib/loky pool and the same
   sweep: it hands them over (:meth:`TTCLauncher.share_compositions`) and the workers reuse
   them instead of composing them again (~0.2 s each, per worker);
 * the sweeper starts the workers while it plans (:meth:`TTCLauncher.warm_up`): their
-  imports and the restored sweep state overlap the main process's planning.
+  imports and the restored sweep state overlap the main process's planning, and each then
+  calls the task module's ``warm_up(master config)`` when it has one (ttc-bench's:
+  :mod:`experiments.warm_up`, the stages every setting shares).
 
 A worker that dies (a signal: an out-of-memory kill, a segfault in native code) breaks a joblib
 pool and would end the sweep with ``TerminatedWorkerError``. This launcher instead re-runs each
@@ -260,11 +262,15 @@ def _worker_state(state: SweepState) -> dict[str, Any]:
 
 
 def _warm(state: SweepState, modules: Sequence[str]) -> int:
-    """Import ``modules`` and restore the sweep state in this worker (while the main process
-    plans); its process id."""
-    for name in modules:
-        importlib.import_module(name)
-    _worker_state(state)
+    """Import ``modules``, restore the sweep state in this worker and call each module's
+    ``warm_up(master config)`` if it has one (work any job of the sweep needs, done while the
+    main process plans); this worker's process id."""
+    imported = [importlib.import_module(name) for name in modules]
+    worker = _worker_state(state)
+    HydraConfig.instance().set_config(worker["master"])
+    for module in imported:
+        if callable(hook := getattr(module, "warm_up", None)):
+            hook(worker["master"])
     return os.getpid()
 
 

@@ -1,0 +1,57 @@
+"""Work every setting of a sweep needs, done while the sweep is being planned.
+
+The ttc launcher starts its workers while the sweeper validates and plans
+(``hydra_plugins/ttc_launcher``); each worker then calls the task module's ``warm_up`` with
+the sweep's master config. In a cold sweep the workers would otherwise wait idle for the plan:
+here they fill the stage cache with what any setting of the sweep reads, whatever its
+features: each frame's objects (YOLO) and lane points, and the recording's reference TTC
+that the end-of-sweep summary ranks against. Two workers split the entries (the cache's
+cooperative locking); a warm cache makes it a few file reads.
+
+Nothing is done when the sweep varies the recording, the frames, the objects or the lane
+crop (the master config holds none of the sweep's values then) or the cache is off. Errors
+are left for the jobs, which record them per frame.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from omegaconf import DictConfig
+
+from experiments.config import data_root, prepared_frame_range, settings_from_config
+from ttc.cache import StageCache
+from ttc.stages import shared_frame_tasks
+
+log = logging.getLogger(__name__)
+#: Config groups whose values the shared stages depend on: swept, nothing is warmed up.
+SHARED_GROUPS = ("dataset", "objects", "lidar")
+
+
+def swept_keys(master: DictConfig) -> set[str]:
+    """The keys a multirun sweeps: command-line sweep overrides and the sweeper's params."""
+    parser = OverridesParser.create()
+    task = [str(o) for o in master.hydra.overrides.task]
+    keys = {o.key_or_group for o in parser.parse_overrides(task) if o.is_sweep_override()}
+    params = master.hydra.sweeper.get("params") or {}
+    return keys | {str(k) for k in params}
+
+
+def warm_up(master: DictConfig) -> None:
+    """Fill the stage cache with the shared entries of ``master``'s sweep (module docstring);
+    never raises."""
+    try:
+        swept = {k.lstrip("+~").split(".")[0].split("/")[0] for k in swept_keys(master)}
+        if swept & set(SHARED_GROUPS) or not master.cache.enabled:
+            return
+        frames = prepared_frame_range(master)
+        cache = StageCache(master.cache.dir)
+        tasks = shared_frame_tasks(settings_from_config(master), frames, cache)
+        if master.dataset.get("generator") is None:  # the exact truth needs no reference
+            from experiments.reference_store import reference_task  # noqa: PLC0415 (SciPy)
+
+            tasks.insert(0, reference_task(data_root(master) / master.dataset.sequence))
+        cache.resolve(tasks, errors=(Exception,))
+    except Exception as exc:  # the jobs meet the same problem and record it
+        log.debug(f"warm-up skipped: {exc!r}")
