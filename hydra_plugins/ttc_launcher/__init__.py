@@ -308,8 +308,7 @@ def _execute_job(idx: int, overrides: Sequence[str], state: SweepState) -> JobRe
     with open_dict(sweep_config):
         sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
         sweep_config.hydra.job.num = idx
-    HydraConfig.instance().set_config(sweep_config)
-    return run_job(
+    return run_job(  # sets the job's HydraConfig
         hydra_context=worker["hydra_context"],
         config=sweep_config,
         task_function=worker["task_function"],
