@@ -110,6 +110,7 @@ def timed_sweep(
     ``memory``, when given, receives the peaks of :func:`_sample_memory` (MB), sampled every
     0.5 s."""
     env = {**os.environ, "TTC_RESULTS_DIR": str(results), "TTC_CACHE_DIR": str(cache)}
+    started = time.time()
     start = time.perf_counter()
     proc = subprocess.Popen(
         [sys.executable, "-m", "experiments.run", *args],
@@ -133,7 +134,9 @@ def timed_sweep(
     if proc.returncode != 0:
         raise RuntimeError(f"sweep {args} failed:\n{err[-4000:]}")
     name = next(a.split("=", 1)[1] for a in args if a.startswith("sweep_name="))
-    return wall, pd.read_parquet(results / name / store.RUNS_FILE)
+    runs = pd.read_parquet(results / name / store.RUNS_FILE)
+    runs.attrs.update(started=started, ended=started + wall)  # epoch seconds
+    return wall, runs
 
 
 def timed_report(sweep_dir: Path, out: Path, cache: Path) -> float:
@@ -176,14 +179,23 @@ def _sample_memory(pid: int, peaks: dict[str, float], done: threading.Event) -> 
 def sweep_breakdown(runs: pd.DataFrame, cores: int) -> dict[str, float]:
     """Where a sweep's wall time went (s): ``jobs_s`` the settings' own work (the run
     records' ``wall_s``, summed, divided by the cores), ``span_s`` first job start to last job
-    end; the rest of the span is per-job launcher work (Hydra composes each job's config in the
-    worker), the rest of the wall time start-up and the final merge + summary."""
-    start, end = pd.to_datetime(runs["start"]), pd.to_datetime(runs["end"])
-    return {
-        "jobs_s": float(runs["wall_s"].sum()) / cores,
+    end (the rest of the span is per-job launcher work: Hydra's ``run_job``, the job's config,
+    and workers waiting for the last jobs); from :func:`timed_sweep`'s runs, ``lead_in_s`` the
+    command's start to the first job's (start-up, validation and planning) and ``tail_s`` the
+    last job's end to the command's (merge and summary). Jobs are the computed ones (settings
+    skipped at planning have records without work)."""
+    computed = runs[runs["status"] != "skipped"] if "status" in runs else runs
+    computed = computed if len(computed) else runs
+    start, end = pd.to_datetime(computed["start"]), pd.to_datetime(computed["end"])
+    out = {
+        "jobs_s": float(computed["wall_s"].sum()) / cores,
         "span_s": (end.max() - start.min()).total_seconds(),
-        "jobs": len(runs),
+        "jobs": len(computed),
     }
+    if {"started", "ended"} <= runs.attrs.keys():
+        out["lead_in_s"] = start.min().timestamp() - runs.attrs["started"]
+        out["tail_s"] = runs.attrs["ended"] - end.max().timestamp()
+    return out
 
 
 def hydra_compose_seconds(repeats: int = 5) -> float:
@@ -305,7 +317,7 @@ def grand_figures(workdir: Path, cores: int) -> dict[str, Any]:
     report["grand_settings"] = len(runs)
     report["grand_status"] = runs["status"].value_counts().to_dict()
     report["grand_worker_peak_rss_mb"] = float(runs["peak_rss_mb"].max())
-    report["grand_cold_breakdown"] = sweep_breakdown(runs[runs["status"] == "ok"], cores)
+    report["grand_cold_breakdown"] = sweep_breakdown(runs, cores)
     warm, warm_runs = timed_sweep([*GRAND_WARM, "sweep_name=grand_warm"], results, cache, memory)
     report.update(grand_warm_s=warm, grand_warm_settings=len(warm_runs))
     report["grand_report_s"] = timed_report(results / "grand", workdir / "grand-report", cache)
@@ -411,7 +423,9 @@ def main(argv: list[str] | None = None) -> None:
         if f"{name}_breakdown" in report:
             b = report[f"{name}_breakdown"]
             print(f"{name + ' breakdown':>24}: jobs' own work {b['jobs_s']:.1f} s per core, "
-                  f"first job start to last end {b['span_s']:.1f} s ({b['jobs']} jobs)")  # fmt: skip
+                  f"first job start to last end {b['span_s']:.1f} s ({b['jobs']} jobs), "
+                  f"before {b.get('lead_in_s', float('nan')):.1f} s, "
+                  f"after {b.get('tail_s', float('nan')):.1f} s")  # fmt: skip
     print(f"{'meets targets':>24}: {report['meets']}")
     print(f"{'missing figures':>24}: {report['missing']}")
     print(f"report: {out}")

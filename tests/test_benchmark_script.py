@@ -38,5 +38,8 @@ def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
     assert report["nocache_s"] > report["warm_filter_s"]  # the cache saves work
     warm = report["warm_filter_breakdown"]
     assert 0 < warm["jobs_s"] <= warm["span_s"] <= report["warm_filter_s"] and warm["jobs"] == 16
+    # the jobs start after the command and end before it (records' times read right)
+    assert 0 < warm["lead_in_s"] < report["warm_filter_s"]
+    assert 0 < warm["tail_s"] < report["warm_filter_s"]
     assert 0 < report["hydra_compose_s_per_job"] < 5
     print(json.dumps({k: v for k, v in report.items() if isinstance(v, float)}, indent=1))
