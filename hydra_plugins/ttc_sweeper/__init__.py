@@ -11,9 +11,8 @@ value, and any value the ``validator`` (``experiments.config.validate_config``: 
 ranges, frame range, data present) refuses, fails with Hydra's message before any job runs.
 
 While it validates and plans a sweep that will compute something (some setting has no run
-record yet), the ttc launcher starts its workers (``warm_up``); the
-compositions it made are handed to the launcher (``share_compositions``), whose workers
-reuse them.
+record yet), the ttc launcher starts its workers (``warm_up``); the compositions it made are
+handed to the launcher (``share_compositions``), whose workers reuse them.
 
 Before launching, it plans the sweep (:mod:`experiments.plan`): settings whose run is
 complete are dropped (resume before launch: a finished sweep starts no worker), invalid
@@ -164,17 +163,21 @@ class TTCSweeper(BasicSweeper):
         OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
         returns: list[Sequence[JobReturn]] = []
         initial_job_idx = 0
-        while not self.is_done():
-            batch = self.get_job_batch()
-            jobs = self.plan(batch, sweep_dir)
-            results = self.launcher.launch(jobs, initial_job_idx=initial_job_idx) if jobs else []
-            for r in results:
-                if r.status == JobStatus.FAILED:
-                    log.error(f"job {' '.join(r.overrides)} failed: {r._return_value}")
-            initial_job_idx += len(jobs)
-            returns.append(results)
-        if hasattr(self.launcher, "release"):  # workers warmed up for a plan with no job
-            self.launcher.release()
+        try:
+            while not self.is_done():
+                batch = self.get_job_batch()
+                jobs = self.plan(batch, sweep_dir)
+                results = (
+                    self.launcher.launch(jobs, initial_job_idx=initial_job_idx) if jobs else []
+                )
+                for r in results:
+                    if r.status == JobStatus.FAILED:
+                        log.error(f"job {' '.join(r.overrides)} failed: {r._return_value}")
+                initial_job_idx += len(jobs)
+                returns.append(results)
+        finally:  # workers warmed up for a plan with no job, or one that failed validation
+            if hasattr(self.launcher, "release"):
+                self.launcher.release()
         return returns
 
     def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> list[list[str]]:
