@@ -46,6 +46,7 @@ from ttc.frames import (
     TRUTH_FILE,
     VELO_TO_CAM,
     Calibration,
+    calibration_dir,
     file_identity,
     frame_files,
     load_calibration,
@@ -110,7 +111,8 @@ def dataset_key(sequence_dir: Path, params: ScaleTruthParams) -> str:
     """The identity of a generated recording (module docstring), 64 hex digits."""
     files = [frame_files(sequence_dir, k) for k in params.sources]
     sources = [(file_identity(f.image), file_identity(f.scan)) for f in files]
-    calib = [file_identity(sequence_dir / name) for name in (CAM_TO_CAM, VELO_TO_CAM)]
+    calib_dir = calibration_dir(sequence_dir)
+    calib = [file_identity(calib_dir / name) for name in (CAM_TO_CAM, VELO_TO_CAM)]
     code = [
         hashlib.sha256(inspect.getsource(module).encode()).hexdigest()
         for module in (generator, sys.modules[__name__])
@@ -152,8 +154,8 @@ def write_recording(
     settings = _source_settings()
     (folder / IMAGE_DIR).mkdir(parents=True)
     (folder / LIDAR_DIR).mkdir(parents=True)
-    for name in (CAM_TO_CAM, VELO_TO_CAM):
-        shutil.copyfile(sequence_dir / name, folder / name)
+    for name in (CAM_TO_CAM, VELO_TO_CAM):  # beside the pairs: the Udacity layout
+        shutil.copyfile(calibration_dir(sequence_dir) / name, folder / name)
     rows = []
     for lead in leads:
         image = read_image(frame_files(sequence_dir, lead.frame).image)

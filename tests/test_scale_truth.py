@@ -251,3 +251,21 @@ def test_disjoint_frame_pairs():
         frame_pairs([0, 1, 2], "disjoint")
     with pytest.raises(ValueError, match="pairing"):
         frame_pairs([0, 1], "overlapping")
+
+
+def test_a_kitti_raw_drive_can_be_a_source(kitti_dir: Path, tmp_path: Path) -> None:
+    """A source in the official KITTI-raw layout (calibration in the date folder, beside the
+    drive) is generated from too: its calibration is found, keyed and copied with the pairs."""
+    from tests.test_kitti_raw import make_drive
+    from ttc.frames import CAM_TO_CAM, VELO_TO_CAM, load_calibration
+
+    drive = make_drive(kitti_dir, tmp_path, "0052", [0, 1, 2])
+    assert not (drive / CAM_TO_CAM).exists()  # only in the date folder
+    params = ScaleTruthParams(first=0, last=0, source_step=1, targets_s=(3.0,)).noiseless()
+    folder = materialise(drive, params, tmp_path / "cache")
+    for name in (CAM_TO_CAM, VELO_TO_CAM):
+        assert (folder / name).read_bytes() == (kitti_dir / name).read_bytes()
+    np.testing.assert_array_equal(
+        load_calibration(folder).velo_to_image, load_calibration(kitti_dir).velo_to_image
+    )
+    assert len(read_truth(folder)) == 1
