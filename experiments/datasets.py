@@ -27,6 +27,7 @@ from ttc.frames import (
     CAM_TO_CAM,
     VELO_TO_CAM,
     FrameDataError,
+    calibration_dir,
     read_frame_times,
     recording_frames,
 )
@@ -120,9 +121,12 @@ def layout_problems(date: str, sequence_dir: Path) -> list[str]:
             )
     except FrameDataError as exc:
         problems.append(str(exc))
+    folder = calibration_dir(sequence_dir)  # where the run will read both files
+    if not (folder / CAM_TO_CAM).is_file():  # in neither: name where KITTI raw keeps them
+        folder = sequence_dir.parent
     for name in (CAM_TO_CAM, VELO_TO_CAM):
-        if not any((folder / name).is_file() for folder in (sequence_dir, sequence_dir.parent)):
-            problems.append(f"{sequence_dir.parent / name}: calibration file not found")
+        if not (folder / name).is_file():
+            problems.append(f"{folder / name}: calibration file not found")
     return problems
 
 

@@ -171,6 +171,16 @@ def test_a_drive_without_timestamps_or_calibration_is_refused(kitti_dir, tmp_pat
     ]
 
 
+def test_calibration_split_between_drive_and_date_folder_is_refused(kitti_dir, tmp_path) -> None:
+    """The run reads both files from one folder (:func:`ttc.frames.calibration_dir`): one in
+    the drive folder and the other only in the date folder is refused before any job, naming
+    the file the run would miss."""
+    seq = make_drive(kitti_dir, tmp_path, "0052", [0, 1, 2])
+    (seq / CAM_TO_CAM).symlink_to(kitti_dir / CAM_TO_CAM)  # the date folder keeps both
+    problems = config_problems(composed(["dataset=kitti_raw", f"dataset.root={tmp_path}"]))
+    assert problems == [f"{seq / VELO_TO_CAM}: calibration file not found"]
+
+
 def test_a_missing_drive_says_how_to_obtain_it_and_downloads_nothing(tmp_path) -> None:
     problems = config_problems(composed(["dataset=kitti_raw", f"dataset.root={tmp_path}"]))
     assert len(problems) == 1 and "registration" in problems[0]
