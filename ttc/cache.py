@@ -27,7 +27,7 @@ import time
 import warnings
 import zipfile
 from collections import OrderedDict
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Hashable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -51,20 +51,21 @@ def _nbytes(arrays: Arrays) -> int:
     return sum(a.nbytes for a in arrays.values())
 
 
-class _Recent:
-    """Least-recently-used entries of this process, bounded by their bytes."""
+class RecentArrays:
+    """Least-recently-used sets of arrays of this process (by any hashable name), bounded by
+    their bytes; kept arrays are read-only."""
 
     def __init__(self) -> None:
-        self.entries: OrderedDict[tuple[str, str], Arrays] = OrderedDict()
+        self.entries: OrderedDict[Hashable, Arrays] = OrderedDict()
         self.nbytes = 0
 
-    def get(self, name: tuple[str, str]) -> Arrays | None:
+    def get(self, name: Hashable) -> Arrays | None:
         arrays = self.entries.get(name)
         if arrays is not None:
             self.entries.move_to_end(name)
         return arrays
 
-    def put(self, name: tuple[str, str], arrays: Arrays, budget: int) -> Arrays:
+    def put(self, name: Hashable, arrays: Arrays, budget: int) -> Arrays:
         """Keep ``arrays`` (made read-only) and return them; evict beyond ``budget`` bytes."""
         arrays = {field: np.asarray(value) for field, value in arrays.items()}  # as loaded
         for array in arrays.values():
@@ -81,7 +82,7 @@ class _Recent:
         return arrays
 
 
-_RECENT = _Recent()
+_RECENT = RecentArrays()
 #: Cache folders this process found unwritable (warned once each).
 _UNWRITABLE: set[str] = set()
 

@@ -23,7 +23,6 @@ before the option existed stay valid; a ``custom`` stage's key holds the hash of
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -31,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from ttc.cache import Lookup, StageCache, Task, cache_key
+from ttc.cache import Lookup, RecentArrays, StageCache, Task, cache_key
 from ttc.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_binary
 from ttc.frames import (
     CAM_TO_CAM,
@@ -86,8 +85,8 @@ PER_FRAME_STAGES = ("objects", "lidar", "keypoints", "descriptors")
 
 #: Most bytes of decoded grey images a process keeps (a 1242 × 375 KITTI frame: 0.47 MB).
 GRAY_MEMORY_BYTES = 64 * 2**20
-#: Grey images decoded in this process, by image file identity, least recently used first.
-_GRAYS: OrderedDict[tuple[str, int, int], np.ndarray] = OrderedDict()
+#: Grey images decoded in this process, by image file identity.
+_GRAYS = RecentArrays()
 
 
 def gray_image(path: Path, decode: Callable[[], np.ndarray]) -> np.ndarray:
@@ -96,15 +95,11 @@ def gray_image(path: Path, decode: Callable[[], np.ndarray]) -> np.ndarray:
     A batch of settings reads each frame's image once per detector and descriptor: decoding
     the PNG again cost more than describing it with a fast descriptor."""
     ident = file_identity(path)
-    gray = _GRAYS.get(ident)
-    if gray is None:
+    kept = _GRAYS.get(ident)
+    if kept is None:
         gray = cv2.cvtColor(decode(), cv2.COLOR_BGR2GRAY)
-        gray.flags.writeable = False
-        _GRAYS[ident] = gray
-        while sum(g.nbytes for g in _GRAYS.values()) > GRAY_MEMORY_BYTES and len(_GRAYS) > 1:
-            _GRAYS.popitem(last=False)
-    _GRAYS.move_to_end(ident)
-    return gray
+        kept = _GRAYS.put(ident, {"gray": gray}, GRAY_MEMORY_BYTES)
+    return kept["gray"]
 
 
 class FrameStages:
