@@ -378,12 +378,18 @@ class TTCLauncher(JoblibLauncher):
         self._warming = threading.Thread(target=start, name="ttc-warm-up", daemon=True)
         self._warming.start()
 
+    def _wait_for_warm_up(self) -> bool:
+        """Wait for a running :meth:`warm_up`; True when there was one."""
+        if self._warming is None:
+            return False
+        self._warming.join()
+        self._warming = None
+        return True
+
     def release(self) -> None:
         """Wait for a :meth:`warm_up` and stop the workers it started (a sweep that launched
         nothing)."""
-        if self._warming is not None:
-            self._warming.join()
-            self._warming = None
+        if self._wait_for_warm_up():
             shut_down_workers(self._joblib_cfg().get("n_jobs"))
 
     def launch(
@@ -398,9 +404,7 @@ class TTCLauncher(JoblibLauncher):
         log.info(f"Launching {len(job_overrides)} jobs, sweep output dir: {sweep_dir}")
         for idx, overrides in enumerate(job_overrides):  # hydra.verbose=true shows them
             log.debug(f"\t#{initial_job_idx + idx} : {' '.join(filter_overrides(overrides))}")
-        if self._warming is not None:
-            self._warming.join()
-            self._warming = None
+        self._wait_for_warm_up()
         started = sweep_dir / STARTED_DIR
         shutil.rmtree(started, ignore_errors=True)
         started.mkdir(parents=True)
