@@ -179,18 +179,23 @@ def data_root(cfg: DictConfig) -> Path:
     return paths.resolve(cfg.dataset.root)
 
 
+def sequence_dir(cfg: DictConfig) -> Path:
+    """The recording's folder: ``dataset.sequence`` under the data root."""
+    return data_root(cfg) / cfg.dataset.sequence
+
+
 def frame_range_from_config(cfg: DictConfig) -> FrameRange:
     """The core's :class:`FrameRange` for a composed config."""
     ds = cfg.dataset
     if ds.get("generator") is not None:  # generated pairs (experiments/scale_truth.py)
         from experiments.scale_truth import generated_frame_range
 
-        return generated_frame_range(cfg, data_root(cfg) / ds.sequence)
-    sequence_dir = data_root(cfg) / ds.sequence
+        return generated_frame_range(cfg, sequence_dir(cfg))
+    recording = sequence_dir(cfg)
     return FrameRange(
-        sequence_dir=sequence_dir,
+        sequence_dir=recording,
         first=ds.first,
-        last=datasets.frame_range_last(ds.last, sequence_dir),
+        last=datasets.frame_range_last(ds.last, recording),
         step=ds.step,
         projection=ds.projection,
         min_scan_points=ds.min_scan_points,
@@ -203,7 +208,7 @@ def prepared_frame_range(cfg: DictConfig) -> FrameRange:
     if cfg.dataset.get("generator") is not None:
         from experiments.scale_truth import materialise_config
 
-        materialise_config(cfg, data_root(cfg) / cfg.dataset.sequence)
+        materialise_config(cfg, sequence_dir(cfg))
     return frame_range_from_config(cfg)
 
 
@@ -211,9 +216,7 @@ def setting_config(cfg: DictConfig) -> dict[str, Any]:
     """The part of the config that determines the numbers (no paths, no launcher)."""
     setting = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in (*AXES, "lidar")}
     setting["dataset"] = {k: v for k, v in setting["dataset"].items() if k != "root"}
-    setting["dataset"] = datasets.dataset_identity(
-        setting["dataset"], data_root(cfg) / cfg.dataset.sequence
-    )
+    setting["dataset"] = datasets.dataset_identity(setting["dataset"], sequence_dir(cfg))
     if setting["matcher"]["name"] in TRACKERS:  # no descriptor, no selection: one run id
         setting["descriptor"] = {"name": NO_DESCRIPTOR.name}
         setting["selector"] = {"name": NO_SELECTOR.name}
@@ -293,11 +296,11 @@ def run_id(cfg: DictConfig) -> str:
 
 def missing_data_message(cfg: DictConfig) -> str:
     """What to say when the configured recording folder does not exist."""
-    sequence_dir = data_root(cfg) / cfg.dataset.sequence
+    recording = sequence_dir(cfg)
     if cfg.dataset.get("date"):
-        return datasets.missing_drive_message(sequence_dir)
+        return datasets.missing_drive_message(recording)
     return (
-        f"KITTI frames not found: {sequence_dir} does not exist.\n"
+        f"KITTI frames not found: {recording} does not exist.\n"
         "Point TTC_DATA_DIR (or dataset.root=...) at a folder holding "
         f"{cfg.dataset.sequence}/, or fetch the 78 frames with:\n"
         f"  python -m experiments.download --data-root {data_root(cfg)}"
@@ -327,9 +330,9 @@ def config_problems(cfg: DictConfig) -> list[str]:
     except (ValueError, TypeError) as exc:
         problems.append(f"lidar.crop: {exc}")
     ds = cfg.dataset
-    sequence_dir = data_root(cfg) / ds.sequence
+    recording = sequence_dir(cfg)
     first, step = int(ds.first), int(ds.step)
-    last = datasets.resolved_last(ds.last, sequence_dir)
+    last = datasets.resolved_last(ds.last, recording)
     if last is None:  # a whole drive that has no frames: said below
         last = first + step
     if first < 0:
@@ -347,17 +350,17 @@ def config_problems(cfg: DictConfig) -> list[str]:
         problems.append(f"dataset.projection={ds.projection} must be one of {PROJECTIONS}")
     if problems:
         return problems
-    if not sequence_dir.is_dir():
+    if not recording.is_dir():
         return [missing_data_message(cfg)]
-    present = recording_frames(sequence_dir)
+    present = recording_frames(recording)
     if not present:
-        problems.append(f"{sequence_dir}: no frames found (image_02/data/NNNNNNNNNN.png)")
+        problems.append(f"{recording}: no frames found (image_02/data/NNNNNNNNNN.png)")
     elif last > present[-1]:
         problems.append(
             f"dataset.last={last} is past the recording's last frame: frames "
-            f"{present[0]}–{present[-1]} exist in {sequence_dir}"
+            f"{present[0]}–{present[-1]} exist in {recording}"
         )
-    return problems + datasets.layout_problems(ds.date, sequence_dir)
+    return problems + datasets.layout_problems(ds.date, recording)
 
 
 def validate_config(cfg: DictConfig) -> None:

@@ -44,10 +44,10 @@ from experiments import progress, store
 from experiments.batch import run_batch
 from experiments.config import (
     config_problems,
-    data_root,
     missing_data_message,
     prepared_frame_range,
     register_configs,
+    sequence_dir,
     setting_config,
     setting_hash,
     settings_from_config,
@@ -70,8 +70,7 @@ def output_dir() -> Path:
 
 def check_data(cfg: DictConfig) -> None:
     """Exit with a plain message when the data root is missing."""
-    sequence_dir = data_root(cfg) / cfg.dataset.sequence
-    if not sequence_dir.is_dir():
+    if not sequence_dir(cfg).is_dir():
         sys.exit(missing_data_message(cfg))
 
 

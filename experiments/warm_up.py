@@ -20,7 +20,7 @@ import logging
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig
 
-from experiments.config import data_root, prepared_frame_range, settings_from_config
+from experiments.config import prepared_frame_range, sequence_dir, settings_from_config
 from ttc.cache import StageCache
 from ttc.stages import shared_frame_tasks
 
@@ -51,7 +51,7 @@ def warm_up(master: DictConfig) -> None:
         if master.dataset.get("generator") is None:  # the exact truth needs no reference
             from experiments.reference_store import reference_task  # noqa: PLC0415 (SciPy)
 
-            tasks.insert(0, reference_task(data_root(master) / master.dataset.sequence))
+            tasks.insert(0, reference_task(sequence_dir(master)))
         cache.resolve(tasks, errors=(Exception,))
     except Exception as exc:  # the jobs meet the same problem and record it
         log.debug(f"warm-up skipped: {exc!r}")
