@@ -15,7 +15,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from experiments import progress, store
-from experiments.finished import count_lines
+from experiments.finished import nothing_computed_line, summary_head
 from ttc.pipeline import SETTING_AXES
 
 SETTING_COLUMNS = list(SETTING_AXES)
@@ -115,12 +115,10 @@ def summarise_sweep(
     unchanged = unchanged and store.merge_is_current(sweep_dir)
     runs = pd.read_parquet(sweep_dir / store.RUNS_FILE) if unchanged else store.merge(sweep_dir)
     n_rows = store.merged_row_count(sweep_dir)
-    print(f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({n_rows} rows)")
-    print(f"run records:   {sweep_dir / store.RUNS_FILE}")
     folder = progress.progress_dir(sweep_dir)
     outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None
     statuses = [] if runs.empty else runs["status"].astype(str).tolist()
-    print("\n".join(count_lines(statuses, outcomes)))
+    print("\n".join(summary_head(sweep_dir, n_rows, statuses, outcomes)))
     for _, run in runs[runs["status"] == "failed"].iterrows() if not runs.empty else []:
         print(f"  failed {run['run_id']}: {run['message']}")
     if "n_frame_errors" in runs:
@@ -128,7 +126,7 @@ def summarise_sweep(
             print(f"  frame errors in {run['run_id']} (retried when the input changes): "
                   f"{run['message']}")  # fmt: skip
     if unchanged:
-        print(f"\n(nothing computed: `python -m experiments.collect {sweep_dir}` ranks it)")
+        print(nothing_computed_line(sweep_dir))
         return pd.DataFrame()
     frames = lead_rows(sweep_dir) if n_rows else pd.DataFrame()
     if frames.empty:

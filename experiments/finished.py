@@ -107,6 +107,25 @@ def count_lines(statuses: Sequence[str], outcomes: Sequence[str] | None) -> list
     return lines
 
 
+def summary_head(
+    sweep_dir: Path, rows: int, statuses: Sequence[str], outcomes: Sequence[str] | None
+) -> list[str]:
+    """The sweep summary's first lines: where the merged dataset (``rows`` rows) and the run
+    records are, then :func:`count_lines`."""
+    from experiments import store  # noqa: PLC0415 (pandas: imported once a sweep exists)
+
+    return [
+        f"\nsweep dataset: {Path(sweep_dir) / store.FRAMES_FILE} ({rows} rows)",
+        f"run records:   {Path(sweep_dir) / store.RUNS_FILE}",
+        *count_lines(statuses, outcomes),
+    ]
+
+
+def nothing_computed_line(sweep_dir: Path) -> str:
+    """The summary's last line when nothing was computed (no ranking printed)."""
+    return f"\n(nothing computed: `python -m experiments.collect {sweep_dir}` ranks it)"
+
+
 def report_if_finished(argv: Sequence[str]) -> bool:
     """Print the summary of command ``argv`` and return True when its sweep is finished and
     its merge current (module docstring); False (nothing printed) otherwise."""
@@ -135,10 +154,8 @@ def report_if_finished(argv: Sequence[str]) -> bool:
         plan_line(len(run_ids), len(run_ids), 0, 0, 0, 0),
         "(the command was planned before and nothing it depends on has changed: no config "
         "composed, no worker started)",
-        f"\nsweep dataset: {sweep_dir / store.FRAMES_FILE} ({rows} rows)",
-        f"run records:   {sweep_dir / store.RUNS_FILE}",
-        *count_lines(statuses, ["resumed"] * len(run_ids)),
-        f"\n(nothing computed: `python -m experiments.collect {sweep_dir}` ranks it)",
+        *summary_head(sweep_dir, rows, statuses, ["resumed"] * len(run_ids)),
+        nothing_computed_line(sweep_dir),
         sep="\n",
     )
     sys.stdout.flush()
