@@ -64,16 +64,43 @@ def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame, sensor: str) -> p
     return ranked[[c for c in columns if c in ranked]]
 
 
-def sweep_reference(runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None):
-    """The reference TTC of the sweep's recording, or None (with the reason printed) when it
-    cannot be built, e.g. the data root is gone."""
-    try:
-        from experiments.reference_store import runs_reference  # noqa: PLC0415 (SciPy)
+def sweep_references(
+    frames: pd.DataFrame, runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None
+) -> dict[str, pd.DataFrame] | None:
+    """What the ok runs of each recording are judged against
+    (:func:`experiments.reference_store.recording_references`), or None (with the reason
+    printed) when it cannot be built, e.g. the data root is gone."""
+    from experiments.reference_store import recording_references  # noqa: PLC0415 (SciPy)
+    from ttc.cache import StageCache  # noqa: PLC0415
 
-        return runs_reference(runs[runs["status"] == "ok"], data_dir, cache_dir)
+    cache = StageCache(cache_dir) if cache_dir else None
+    try:
+        return recording_references(frames, runs[runs["status"] == "ok"], data_dir, cache)
     except (OSError, ValueError) as exc:
         print(f"(no reference TTC: {exc}; ranking by the interim score instead)")
         return None
+
+
+def pooled_runs(
+    frames: pd.DataFrame, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
+) -> pd.DataFrame:
+    """The settings of a sweep over several recordings ranked on ``sensor`` pooled over them
+    (:func:`ttc.evaluation.drive_rankings`, each run against its own recording's reference;
+    no bootstrap intervals: the report's ``drives.md`` has them); ``run_id`` is the setting
+    id shared by its runs on every recording."""
+    from experiments.reference_store import recording_of  # noqa: PLC0415
+    from experiments.report.drives import drive_name, setting_of  # noqa: PLC0415
+    from ttc import evaluation as ev  # noqa: PLC0415
+
+    ok = runs[runs["status"] == "ok"]
+    drive = recording_of(ok).map(drive_name).to_dict()
+    named = {drive_name(sequence): ref for sequence, ref in references.items()}
+    table = ev.drive_rankings(frames, drive, setting_of(ok).to_dict(), named, sensor, n_boot=0)
+    pooled = table[table["drive"] == ev.POOLED]
+    keys = [f"{sensor}_{k}" for k in ev.RANKING_KEYS]
+    columns = ["rank", "run_id", *SETTING_COLUMNS, *keys, f"{sensor}_outlier_rate",
+               f"{sensor}_medae_rel", "n_frames"]  # fmt: skip
+    return pooled[[c for c in columns if c in pooled]].sort_values("rank", ignore_index=True)
 
 
 def lead_rows(sweep_dir: Path) -> pd.DataFrame:
@@ -146,19 +173,20 @@ def summarise_sweep(
 
 
 def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> tuple:
-    """(ranked settings, title): against the reference, else by the interim score."""
-    if "ttc_true" in frames:  # a generated recording (dataset=scale_truth): its exact truth
-        from ttc.evaluation.truth import truth_reference  # noqa: PLC0415 (SciPy)
-
-        reference, against = truth_reference(frames), "the exact truth"
-    else:
-        reference, against = sweep_reference(runs, data_dir, cache_dir), "the reference"
-    if reference is None:
+    """(ranked settings, title): against the reference (pooled over the recordings of a sweep
+    over several), else by the interim score."""
+    references = sweep_references(frames, runs, data_dir, cache_dir)
+    if not references:
         title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
         return interim_scores(frames), title
     sensor = ranked_sensor(runs[runs["status"] == "ok"])
+    against = "the exact truth" if "ttc_true" in frames else "the reference"
+    if len(references) > 1:
+        title = (f"on the {sensor} TTC pooled over {len(references)} recordings, each run "
+                 f"against its own recording's reference (ttc.evaluation.RANKING_RULE)")  # fmt: skip
+        return pooled_runs(frames, runs, references, sensor), title
     title = f"on the {sensor} TTC against {against} (ttc.evaluation.RANKING_RULE)"
-    return ranked_runs(frames, reference, sensor), title
+    return ranked_runs(frames, next(iter(references.values())), sensor), title
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from experiments.paths import default_cache_dir, default_data_root
+from ttc import evaluation as ev
 from ttc.cache import StageCache, Task, cache_key
 from ttc.evaluation import reference as reference_module
 from ttc.frames import LIDAR_DIR, file_identity, frame_files, read_frame_times
@@ -22,7 +23,7 @@ REFERENCE_CACHE_VERSION = 1
 
 def sequence_of(runs: pd.DataFrame) -> str:
     """The one KITTI recording (``dataset.sequence``) of the runs."""
-    sequences = sorted({json.loads(c)["dataset"]["sequence"] for c in runs["config"]})
+    sequences = sorted(set(recording_of(runs)))
     if len(sequences) != 1:
         raise ValueError(
             f"the sweeps cover {len(sequences)} recordings {sequences}: `python -m "
@@ -68,11 +69,31 @@ def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
     return pd.DataFrame(cache.get(reference_task(sequence_dir)).arrays)
 
 
-def runs_reference(
-    runs: pd.DataFrame, data_dir: Path | None = None, cache_dir: Path | None = None
-) -> pd.DataFrame:
-    """The reference of the recording of ``runs`` (runs.parquet rows); ``data_dir`` and
-    ``cache_dir`` default to the configured ones."""
+def recording_of(runs: pd.DataFrame) -> pd.Series:
+    """The recording (``dataset.sequence``, a folder under the data root) of each run, by
+    run id."""
+    sequences = [json.loads(c)["dataset"]["sequence"] for c in runs["config"]]
+    return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
+
+
+def recording_references(
+    frames: pd.DataFrame,
+    runs: pd.DataFrame,
+    data_dir: Path | None = None,
+    cache: StageCache | None = None,
+) -> dict[str, pd.DataFrame]:
+    """What the runs of each recording are judged against, by recording (``dataset.sequence``,
+    sorted): a generated recording's exact truth (:func:`ttc.evaluation.truth_reference` of
+    its runs' ``frames``), else the recording's reference TTC (:func:`sequence_reference`).
+    ``data_dir`` / ``cache``: None for the configured data root and stage cache."""
     root = Path(data_dir) if data_dir else default_data_root()
-    cache = StageCache(cache_dir if cache_dir else default_cache_dir())
-    return sequence_reference(root / sequence_of(runs), cache)
+    recording = recording_of(runs)
+    out = {}
+    for sequence in sorted(set(recording)):
+        mine = frames[frames["run_id"].isin(recording.index[recording == sequence])]
+        if ev.has_truth(mine):
+            out[sequence] = ev.truth_reference(mine)
+            continue
+        cache = cache if cache is not None else StageCache(default_cache_dir())
+        out[sequence] = sequence_reference(root / sequence, cache)
+    return out

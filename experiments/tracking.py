@@ -10,7 +10,8 @@ sqlite:///sweeps/mlflow.db``.
 What is logged. Parent: the sweep folder, its overrides, the code version, the counts of ok /
 skipped / failed settings. Child, per setting: its axes as params; its status, run id, sweep
 and the path of its rows file (``runs/<run_id>.parquet``) as tags; its metrics against the
-reference (:func:`ttc.evaluation.run_metrics`, every numeric column); its run record as the
+reference (:func:`ttc.evaluation.run_metrics`, every numeric column; each run against its own
+recording's reference, a generated recording's exact truth); its run record as the
 artifact ``record.json``. Logging happens once, after every setting of the sweep has ended,
 from the merged dataset (:func:`experiments.store.load_sweep`), so workers never write to the
 store concurrently and a tracking failure never costs a setting.
@@ -32,8 +33,9 @@ from omegaconf import DictConfig
 
 from experiments import store
 from experiments.config import data_root
-from experiments.reference_store import runs_reference
+from experiments.reference_store import recording_of, recording_references
 from ttc import evaluation as ev
+from ttc.cache import StageCache
 from ttc.pipeline import AXES
 
 #: Tag names of the child runs (``ttc.`` prefix: the project's own).
@@ -48,13 +50,23 @@ def _mlflow() -> Any:
     return mlflow
 
 
-def _metrics_of(frames: pd.DataFrame, runs: pd.DataFrame, **paths: Path | None) -> pd.DataFrame:
-    """Metrics of the ok runs against the recording's reference (empty when none is ok)."""
+def _metrics_of(
+    frames: pd.DataFrame, runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None
+) -> pd.DataFrame:
+    """Metrics of the ok runs, each against its own recording's reference
+    (:func:`experiments.reference_store.recording_references`: a generated recording's exact
+    truth); empty when none is ok."""
     ok = runs[runs["status"] == "ok"]
     if ok.empty or frames.empty:
         return pd.DataFrame(columns=["run_id"])
-    reference = runs_reference(ok, paths.get("data_dir"), paths.get("cache_dir"))
-    return ev.run_metrics(ev.with_compute_times(frames), reference)
+    frames = ev.with_compute_times(frames)
+    cache = StageCache(cache_dir) if cache_dir else None
+    recording = recording_of(ok)
+    parts = [
+        ev.run_metrics(frames[frames["run_id"].isin(recording.index[recording == seq])], ref)
+        for seq, ref in recording_references(frames, ok, data_dir, cache).items()
+    ]
+    return pd.concat(parts, ignore_index=True)
 
 
 def _numbers(row: pd.Series) -> dict[str, float]:
@@ -87,7 +99,7 @@ def log_sweep(
 
     sweep_dir = Path(sweep_dir)
     frames, runs = store.load_sweep(sweep_dir)
-    metrics = _metrics_of(frames, runs, data_dir=data_dir, cache_dir=cache_dir)
+    metrics = _metrics_of(frames, runs, data_dir, cache_dir)
     metrics = metrics.set_index("run_id") if "run_id" in metrics else metrics
     client = mlflow.MlflowClient(tracking_uri=tracking_uri)
     found = client.get_experiment_by_name(experiment)

@@ -241,11 +241,13 @@ def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir
     """The end-of-sweep summary reads only the lead rows and the columns the metrics read
     (:func:`experiments.collect.lead_rows`); its ranking is the ranking of every row."""
     from experiments.collect import lead_rows, ranked_runs
-    from experiments.reference_store import runs_reference
+    from experiments.reference_store import recording_references
+    from ttc.cache import StageCache
 
     sweep = two_ways["tmp"] / "batched" / "grid"
     frames, runs = store.load_sweep(sweep)
-    reference = runs_reference(runs[runs["status"] == "ok"], data_dir, two_ways["tmp"] / "cache")
+    ok, cache = runs[runs["status"] == "ok"], StageCache(two_ways["tmp"] / "cache")
+    (reference,) = recording_references(frames, ok, data_dir, cache).values()
     few = lead_rows(sweep)
     assert len(few) < len(frames) and "git_commit" not in few
     whole = ranked_runs(frames, reference, "camera")

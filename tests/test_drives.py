@@ -79,3 +79,45 @@ def test_a_two_drive_sweep_merges_and_reports_per_drive_and_pooled(two_drive_swe
     assert set(pooled["lidar_ttc"]) == {"median", "closest"}
     text = (tmp_path / "drives.md").read_text()
     assert "## lidar: pooled" in text and f"## camera: {NAMES[1]}" in text
+
+
+@pytest.mark.slow  # uses the two-drive sweep above
+def test_the_sweep_summary_and_tracking_judge_each_run_on_its_own_drive(
+    two_drive_sweep, capsys
+) -> None:
+    """The end-of-sweep summary ranks a sweep over two drives pooled over both (it fell back
+    to the interim camera-vs-lidar score), and the MLflow metrics judge each run against its
+    own drive's reference (they failed: one reference for two recordings)."""
+    from experiments.collect import summarise_sweep
+    from experiments.reference_store import recording_of, sequence_reference
+    from experiments.tracking import _metrics_of
+    from ttc.cache import StageCache
+
+    sweep_dir, root = two_drive_sweep
+    cache_dir = sweep_dir.parent.parent / "cache"
+    frames, runs = store.load_sweep(sweep_dir)
+    recording = recording_of(runs)
+    per_drive = []
+    for sequence in sorted(set(recording)):  # each drive alone, against its own reference
+        mine = frames[frames["run_id"].isin(recording.index[recording == sequence])]
+        reference = sequence_reference(root / sequence, StageCache(cache_dir))
+        per_drive.append(ev.run_metrics(mine, reference))
+    per_drive = pd.concat(per_drive, ignore_index=True).set_index("run_id")
+
+    tracked = _metrics_of(frames, runs, root, cache_dir).set_index("run_id")
+    assert sorted(tracked.index) == sorted(runs["run_id"])
+    assert sorted(tracked["n_frames"]) == [7, 7, 37, 37]
+    pd.testing.assert_series_equal(
+        tracked["lidar_invalid_rate"].sort_index(), per_drive["lidar_invalid_rate"].sort_index()
+    )
+
+    table = summarise_sweep(sweep_dir, data_dir=root, cache_dir=cache_dir)
+    printed = capsys.readouterr().out
+    assert "pooled over 2 recordings" in printed and "interim score" not in printed
+    assert len(table) == 2 and (table["n_frames"] == 44).all()
+    assert set(table["lidar_ttc"]) == {"median", "closest"}
+    for estimator, row in table.set_index("lidar_ttc").iterrows():
+        mine = per_drive[per_drive["lidar_ttc"] == estimator]
+        weighted = (mine["lidar_invalid_rate"] * mine["n_frames"]).sum() / 44
+        assert row["lidar_invalid_rate"] == pytest.approx(weighted)
+    assert sorted(table["rank"]) == [1, 2]

@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 
 from experiments.config import setting_hash
-from experiments.reference_store import sequence_reference
+from experiments.reference_store import recording_of, recording_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData
@@ -23,13 +23,6 @@ DRIVE_KEYS = ("sequence", "date", "drive", "first", "last")
 #: Columns of ``drives_ranking.csv`` (per sensor: its ranking keys and outlier rate).
 RANKING_COLUMNS = ["drive", "rank", "rank_lo", "rank_hi", "setting", "run_id", *AXES,
                    "n_frames", "n_judged"]  # fmt: skip
-
-
-def recording_of(runs: pd.DataFrame) -> pd.Series:
-    """The recording (``dataset.sequence``, a folder under the data root) of each run, by
-    run id."""
-    sequences = [json.loads(c)["dataset"]["sequence"] for c in runs["config"]]
-    return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
 
 
 def drive_name(sequence: str) -> str:
@@ -69,12 +62,10 @@ def split_by_recording(data: SweepData) -> dict[str, SweepData]:
 
 
 def drive_references(data: SweepData, ctx: Context) -> dict[str, pd.DataFrame]:
-    """The reference of every recording of ``data``, by drive name (sorted)."""
-    recording = recording_of(data.runs)
-    return {
-        drive_name(seq): sequence_reference(ctx.root / seq, ctx.cache)
-        for seq in sorted(set(recording))
-    }
+    """What the runs of every recording of ``data`` are judged against
+    (:func:`experiments.reference_store.recording_references`), by drive name (sorted)."""
+    references = recording_references(data.frames, data.runs, ctx.root, ctx.cache)
+    return {drive_name(sequence): ref for sequence, ref in references.items()}
 
 
 def sweep_metrics_by_drive(

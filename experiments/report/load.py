@@ -21,7 +21,7 @@ from experiments.config import (
     with_neutral_options,
 )
 from experiments.paths import PROJECT_ROOT, default_cache_dir, default_data_root
-from experiments.reference_store import sequence_of, sequence_reference
+from experiments.reference_store import recording_references, sequence_of
 from ttc import evaluation as ev
 from ttc.cache import StageCache
 from ttc.pipeline import FrameRange, PairDetail, Settings, pair_detail
@@ -132,9 +132,9 @@ def make_context(data_dir: Path | None = None, cache_dir: Path | None = None) ->
 def reference_for(data: SweepData, ctx: Context) -> pd.DataFrame:
     """The reference of the sweeps' recording (kept in the stage cache); a generated
     recording's exact truth (:func:`ttc.evaluation.truth_reference`) when the rows carry one."""
-    if ev.has_truth(data.frames):
-        return ev.truth_reference(data.frames)
-    return sequence_reference(ctx.root / sequence_of(data.runs), ctx.cache)
+    sequence_of(data.runs)  # one recording, else a ValueError naming them
+    references = recording_references(data.frames, data.runs, ctx.root, ctx.cache)
+    return next(iter(references.values()))
 
 
 def open_sweep(sweep_dir: Path | str) -> tuple[SweepData, Context, pd.DataFrame]:

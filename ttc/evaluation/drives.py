@@ -75,7 +75,8 @@ def drive_rankings(
     """Metrics and rank on ``sensor`` of every run on its own drive (``drive`` = its name,
     ranked among the runs of that drive) and of every setting pooled over the drives
     (``drive`` = :data:`POOLED`, ``run_id`` = the setting id, with the moving-block bootstrap's
-    rank interval resampling within drives: ``rank_lo``, ``rank_hi``, ``block_length``).
+    rank interval resampling within drives: ``rank_lo``, ``rank_hi``, ``block_length``; none
+    with ``n_boot=0``).
     Every row carries its ``setting`` id; drives in the order of ``references``."""
     stacked, reference = stack_drives(frames, drive_of_run, references)
     parts = []
@@ -85,9 +86,10 @@ def drive_rankings(
         parts.append(ranked.assign(drive=drive, setting=ranked["run_id"].map(setting_of_run)))
     pooled = pooled_frames(stacked, setting_of_run)
     ranked = rank_runs(run_metrics(pooled, reference), sensor)
-    intervals = bootstrap_rank_intervals(pooled, reference, n_boot=n_boot, sensor=sensor)
-    ranked = ranked.merge(
-        intervals[["run_id", "rank_lo", "rank_hi", "block_length"]], on="run_id", how="left"
-    )
+    if n_boot > 0:
+        intervals = bootstrap_rank_intervals(pooled, reference, n_boot=n_boot, sensor=sensor)
+        ranked = ranked.merge(
+            intervals[["run_id", "rank_lo", "rank_hi", "block_length"]], on="run_id", how="left"
+        )
     parts.append(ranked.assign(drive=POOLED, setting=ranked["run_id"]))
     return pd.concat(parts, ignore_index=True)
