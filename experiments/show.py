@@ -34,7 +34,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from experiments.config import (
-    frame_range_from_config,
+    prepared_frame_range,
     register_configs,
     settings_from_config,
 )
@@ -162,7 +162,7 @@ def pair_pictures(detail: PairDetail, names: list[str], title: str) -> dict[str,
 def write_pictures(cfg: DictConfig) -> list[Path]:
     """Compute the frame and its pair under the configured setting and write the PNGs."""
     settings = settings_from_config(cfg)
-    frames = frame_range_from_config(cfg)
+    frames = prepared_frame_range(cfg)  # dataset=scale_truth: its recording written first
     cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)
     frame, step = int(cfg.show.frame), int(cfg.dataset.step)
     if frame < 0:

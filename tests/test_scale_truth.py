@@ -269,3 +269,16 @@ def test_a_kitti_raw_drive_can_be_a_source(kitti_dir: Path, tmp_path: Path) -> N
         load_calibration(folder).velo_to_image, load_calibration(kitti_dir).velo_to_image
     )
     assert len(read_truth(folder)) == 1
+
+
+def test_show_writes_a_generated_pair_it_has_to_generate_first(tmp_path):
+    """``experiments.show dataset=scale_truth`` with an empty cache writes the generated
+    recording first, as a run does (it stopped at the missing calibration file)."""
+    env = {**os.environ, "TTC_RESULTS_DIR": str(tmp_path), "TTC_CACHE_DIR": str(tmp_path / "c")}
+    out = tmp_path / "pictures"
+    done = run(["experiments.show", "dataset=scale_truth", "dataset.last=3", "show.frame=1",
+                f"show.out_dir={out}"], env)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    pictures = sorted(p.name for p in (out / "frame_0001").iterdir())
+    assert "lead_ttc.png" in pictures and "keypoint_matches.png" in pictures
+    assert (tmp_path / "c" / "scale_truth").is_dir()  # generated into the configured cache
