@@ -16,6 +16,9 @@ Writes ``metrics.parquet`` beside each sweep (one row per run) and, under ``--ou
   ``fp6_ranking.csv`` (metrics + bootstrap rank interval per setting), the heatmap, series and
   Pareto plots and ``fp6_pictures/`` (readable WebP pictures of the worst frames' lead-box
   matches) (:mod:`.fp6`);
+* with a fused run (``fusion=kalman_*``): ``fp7_fusion.md``, ``fp7_fusion.csv`` (fused against
+  its inputs per setting), ``fp7_fusion_ttc.csv/.png`` (flagged fused frames and reasons)
+  (:mod:`.fp7`);
 * ``html/``: the same as linked HTML pages that open from disk, the ranking sortable and
   filterable, a page per setting (:mod:`.html`).
 

@@ -14,7 +14,7 @@ import matplotlib
 
 from experiments import store
 from experiments.provenance import code_version
-from experiments.report import drives, fp5, fp6, truth
+from experiments.report import drives, fp5, fp6, fp7, truth
 from experiments.report import reference as reference_writer
 from experiments.report.html import html_report
 from experiments.report.load import (
@@ -92,11 +92,14 @@ def build_report(
     lap("fp5")
     fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
     lap("fp6")
+    fp7_table = fp7.fp7_report(data, reference, out) if has_rows else None
+    lap("fp7")
     index = html_report(data, reference, fp5_table, fp6_tables, out) if html else None
     lap("html")
     times["total"] = time.perf_counter() - start
     summary = {"metrics": written, "out": out, "times": times, "pair_details": ctx.calls,
-               "fp5": fp5_table, "fp6": fp6_tables, "html": index}  # fmt: skip
+               "fp5": fp5_table, "fp6": fp6_tables, "fp7": fp7_table,
+               "html": index}  # fmt: skip
     log(f"metrics: {', '.join(map(str, written))}")
     log(f"reports: {out} ({', '.join(sorted(p.name for p in out.glob('*.md')))})")
     if index is not None:
@@ -129,6 +132,7 @@ def build_drives_report(
             continue
         fp5_table = fp5.fp5_report(part, reference, ctx, folder, pictures)
         fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
+        fp7.fp7_report(part, reference, folder)
         if html:
             html_report(part, reference, fp5_table, fp6_tables, folder)
     table = drives.drives_report(data, references, out) if not data.frames.empty else None

@@ -99,6 +99,31 @@ def plot_lidar_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
     return fig
 
 
+def plot_fused_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
+    """One fused setting's TTC per frame (rows of the FP.7 table ``t``) with its ±2 sd band,
+    beside the lidar and camera TTCs it fuses and the reference; flagged frames crossed,
+    values clipped at the top."""
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    ref, top = _ttc_ceiling(reference, t["frame"], 2.5)
+    for column, label, style in (("ttc_lidar", "lidar", "s--"), ("ttc_camera", "camera", "^--")):
+        shown = t[column].where(np.isfinite(t[column])).clip(upper=top)
+        ax.plot(t["frame"], shown, style, ms=4, lw=1, alpha=0.7, label=label)
+    fused = t["ttc_fused"].where(np.isfinite(t["ttc_fused"]))
+    sd = t["ttc_fused_sd"].where(np.isfinite(t["ttc_fused_sd"]))
+    ax.fill_between(t["frame"], (fused - 2 * sd).clip(lower=0, upper=top),
+                    (fused + 2 * sd).clip(upper=top), alpha=0.2, label="fused ±2 sd")  # fmt: skip
+    ax.plot(t["frame"], fused.clip(upper=top), "o-", ms=4, lw=2, label="fused")
+    flagged = t[t["flagged"]]
+    ax.scatter(flagged["frame"], fused[t["flagged"]].fillna(0.98 * top).clip(upper=top),
+               marker="x", s=70, color="crimson", label="flagged", zorder=5)  # fmt: skip
+    ax.plot(ref["frame"], ref["ttc_ref_s"], color="black", lw=2.5, label="reference")
+    ax.set(ylim=(0, top), xlabel="frame", ylabel="TTC (s, clipped)",
+           title=f"FP.7 fused TTC: {t['setting'].iloc[0]}")  # fmt: skip
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    return fig
+
+
 def plot_heatmap(ranking: pd.DataFrame) -> plt.Figure:
     """Detector × descriptor heatmaps of the best setting's invalid rate and median MiD (the
     ranking rule's two keys)."""
