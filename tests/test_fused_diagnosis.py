@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from experiments.report.cli import build_report
+from tests.browser_cdp import Browser, chromium_path
 from tests.test_sweep import hydra_run
 from ttc import fusion
 from ttc.evaluation import OUTLIER_REL
@@ -79,7 +80,7 @@ def fusion_report(tmp_path_factory) -> tuple[Path, dict]:
     assert done.returncode == 0, done.stderr[-3000:]
     out = tmp / "report"
     summary = build_report([tmp / "sweeps" / "fusion"], out, cache_dir=tmp / "cache",
-                           pictures=False, html=False, log=lambda _: None)  # fmt: skip
+                           pictures=False, log=lambda _: None)  # fmt: skip
     return out, summary
 
 
@@ -90,7 +91,7 @@ def test_the_report_writes_fp7_for_the_fused_runs(fusion_report) -> None:
     assert len(compared) == 4  # the fused runs only: 2 filters x 2 lidar estimators
     assert set(compared["setting"].str.split("/").str[-1]) == {"kalman_cv", "kalman_ca"}
     assert compared["rank"].tolist() == sorted(compared["rank"])
-    assert summary["fp7"]["beats_inputs"].tolist() == compared["beats_inputs"].tolist()
+    assert summary["fp7"][1]["beats_inputs"].tolist() == compared["beats_inputs"].tolist()
 
     t = pd.read_csv(out / "fp7_fusion_ttc.csv")
     assert t.groupby("run_id")["frame"].nunique().eq(18).all()  # every pair of 0-18
@@ -110,3 +111,26 @@ def test_the_report_writes_fp7_for_the_fused_runs(fusion_report) -> None:
     text = (out / "fp7_fusion.md").read_text()
     assert "## Fused against its inputs" in text and "fp7_fusion_ttc.png" in text
     assert (out / "fp7_fusion_ttc.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(chromium_path() is None, reason="chromium is not installed: `.ci/run` "
+                    "installs it (apt-get install -y chromium)")  # fmt: skip
+def test_the_fp7_page_in_headless_chromium(fusion_report, tmp_path) -> None:
+    out, _ = fusion_report
+    compared = pd.read_csv(out / "fp7_fusion.csv")
+    with Browser(tmp_path / "profile") as browser:
+        browser.open(out / "html" / "index.html")
+        assert "fp7.html" in browser.evaluate("[...document.querySelectorAll('nav a')]"
+                                              ".map(a => a.getAttribute('href')).join(' ')")  # fmt: skip
+        browser.open(out / "html" / "fp7.html")
+        rows = "document.querySelectorAll('#fused tbody tr').length"
+        assert browser.wait_for(f"document.querySelector('#fused.dataTable') && {rows}") == len(
+            compared
+        )
+        shown = browser.evaluate("[...document.querySelectorAll('#fused tbody tr')]"
+                                 ".map(r => r.children[1].textContent)")  # fmt: skip
+        assert shown == compared["setting"].tolist()  # ranked on the fused TTC
+        image = "document.querySelector('img')"
+        assert browser.wait_for(f"{image}.complete && {image}.naturalWidth") >= 600
+        assert browser.errors == []

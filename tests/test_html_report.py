@@ -51,7 +51,7 @@ def html_dir(grid_report: Path) -> Path:  # noqa: F811
 @pytest.mark.slow
 def test_html_report_is_self_contained(html_dir: Path, grid_report: Path) -> None:  # noqa: F811
     ranking = pd.read_csv(grid_report / "fp6_ranking.csv")
-    for name in ("index.html", "fp6.html", "fp5.html", "reference.html"):
+    for name in ("index.html", "fp6.html", "fp5.html", "fp7.html", "reference.html"):
         assert (html_dir / name).is_file(), name
     settings = sorted((html_dir / "settings").glob("*.html"))
     assert len(settings) == len(ranking) == 4

@@ -92,13 +92,13 @@ def build_report(
     lap("fp5")
     fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
     lap("fp6")
-    fp7_table = fp7.fp7_report(data, reference, out) if has_rows else None
+    fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
     lap("fp7")
-    index = html_report(data, reference, fp5_table, fp6_tables, out) if html else None
+    index = html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables) if html else None
     lap("html")
     times["total"] = time.perf_counter() - start
     summary = {"metrics": written, "out": out, "times": times, "pair_details": ctx.calls,
-               "fp5": fp5_table, "fp6": fp6_tables, "fp7": fp7_table,
+               "fp5": fp5_table, "fp6": fp6_tables, "fp7": fp7_tables,
                "html": index}  # fmt: skip
     log(f"metrics: {', '.join(map(str, written))}")
     log(f"reports: {out} ({', '.join(sorted(p.name for p in out.glob('*.md')))})")
@@ -132,9 +132,9 @@ def build_drives_report(
             continue
         fp5_table = fp5.fp5_report(part, reference, ctx, folder, pictures)
         fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
-        fp7.fp7_report(part, reference, folder)
+        fp7_tables = fp7.fp7_report(part, reference, folder)
         if html:
-            html_report(part, reference, fp5_table, fp6_tables, folder)
+            html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables)
     table = drives.drives_report(data, references, out) if not data.frames.empty else None
     log(f"metrics: {', '.join(map(str, written))}")
     log(f"reports: {out}/drives.md and one folder per drive ({', '.join(references)})")

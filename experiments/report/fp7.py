@@ -27,9 +27,12 @@ FP7_COLUMNS = [
 MAX_LISTED = 40
 
 
-def fp7_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.DataFrame | None:
-    """Write the FP.7 files (module docstring); return the comparison table
-    (:func:`ttc.evaluation.fused_diagnosis.fusion_vs_inputs`), None without a fused run."""
+def fp7_report(
+    data: SweepData, reference: pd.DataFrame, out: Path
+) -> tuple[pd.DataFrame, pd.DataFrame] | None:
+    """Write the FP.7 files (module docstring); return the frame table with reasons and the
+    comparison table (:func:`ttc.evaluation.fused_diagnosis.fusion_vs_inputs`), None without
+    a fused run."""
     t = fd.fused_reasons(fd.fused_frame_table(data.frames, data.runs, reference))
     if t.empty:
         return None
@@ -39,7 +42,7 @@ def fp7_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.DataFr
     best = compared["run_id"].iloc[0]
     save_figure(plot_fused_series(t[t["run_id"] == best], reference), out / "fp7_fusion_ttc.png")
     write_text(fp7_markdown(data, t, compared, reference), out / "fp7_fusion.md")
-    return compared
+    return t, compared
 
 
 def _intro() -> str:

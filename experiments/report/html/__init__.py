@@ -7,7 +7,8 @@ from disk with no server and no network.
   inline SVG), its metrics, its way-off frames with their reasons, numbers and pictures; on a
   sweep of thousands of settings (``grand``), pages of the :data:`BEST_PAGES` best and
   :data:`WORST_PAGES` worst of each dataset only (the others are rows of the tables);
-* ``fp6.html``, ``fp5.html``, ``reference.html``: the FP.6 / FP.5 diagnoses and the reference;
+* ``fp6.html``, ``fp5.html``, ``fp7.html``, ``reference.html``: the FP.6 / FP.5 / FP.7
+  (fused TTC) diagnoses and the reference;
 * ``pictures/fp6``, ``pictures/fp5``, ``img/``: the report's pictures and figures (the same
   bytes as beside the markdown, so git stores each once).
 
@@ -30,7 +31,7 @@ from ttc.atomic import write_bytes_atomic
 
 #: Figures of the markdown report shown on the HTML pages (copied into ``img/``).
 FIGURES = ("reference.png", "fp5_lidar_ttc.png", "fp6_heatmap.png", "fp6_ttc_series.png",
-           "fp6_pareto.png", "fp6_rank_intervals.png")  # fmt: skip
+           "fp6_pareto.png", "fp6_rank_intervals.png", "fp7_fusion_ttc.png")  # fmt: skip
 
 
 #: Settings of a dataset given a page: the best and the worst of its ranking.
@@ -63,6 +64,7 @@ def html_report(
     fp5_table: pd.DataFrame | None,
     fp6_tables: tuple[pd.DataFrame, pd.DataFrame] | None,
     out: Path,
+    fp7_tables: tuple[pd.DataFrame, pd.DataFrame] | None = None,
 ) -> Path:
     """Write the HTML report of the tables the markdown writers returned into ``out/html``
     (replacing an earlier one) and return its ``index.html``. The pictures and figures are
@@ -99,4 +101,9 @@ def html_report(
     else:
         write_text(pages.page("FP.5 lidar", "<p>No lidar estimate ran.</p>", here="fp5.html"),
                    folder / "fp5.html")  # fmt: skip
+    if fp7_tables is not None:
+        write_text(pages.fp7_page(provenance, *fp7_tables, figures), folder / "fp7.html")
+    else:
+        write_text(pages.page("FP.7 fused", "<p>No run with a fusion (fusion=none).</p>",
+                              here="fp7.html"), folder / "fp7.html")  # fmt: skip
     return folder / "index.html"

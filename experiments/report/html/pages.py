@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.report import fp5, fp6
+from experiments.report import fp5, fp6, fp7
 from experiments.report import reference as reference_writer
 from experiments.report.header import provenance_markdown
 from experiments.report.html.page import (
@@ -301,6 +301,27 @@ def fp5_page(
         *sections,
     ]
     return page("FP.5 lidar", "\n".join(parts), here="fp5.html", tables=True)
+
+
+def fp7_page(
+    provenance: str, t: pd.DataFrame, compared: pd.DataFrame, figures: dict[str, str]
+) -> str:
+    """``fp7.html``: what is judged, each fused setting against its inputs (sortable), the
+    best setting's series and the flagged fused frames with their reasons (filterable)."""
+    flagged = t[t["flagged"]].sort_values(["setting", "frame"])
+    columns = ["setting", "frame", "ttc_fused", "ttc_lidar", "ttc_camera", "ttc_ref_s",
+               "fused_reason", "reasons", "reason_text"]  # fmt: skip
+    parts = [
+        titled("FP.7: fused TTC against its lidar and camera inputs", provenance),
+        f"<p>{inline(fp7._intro())}</p>",
+        f"<h2>Fused against its inputs ({int(compared['beats_inputs'].sum())} of "
+        f"{len(compared)} fused settings beat both inputs' median MiD)</h2>",
+        interactive_table(compared.drop(columns=["run_id"]), "fused", page_length=25),
+        _figure(figures.get("fp7_fusion_ttc.png"), "fused TTC per frame, best setting"),
+        f"<h2>Flagged fused frames ({len(flagged)} setting × frame rows of {len(t)})</h2>",
+        interactive_table(flagged[columns], "flagged_fused", page_length=10),
+    ]
+    return page("FP.7 fused", "\n".join(parts), here="fp7.html", tables=True)
 
 
 # --------------------------------------------------------------------------- reference
