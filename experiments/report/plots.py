@@ -36,6 +36,18 @@ def _ttc_ceiling(reference: pd.DataFrame, frames: pd.Series, factor: float) -> t
     return ref, top
 
 
+def _finish_series(
+    fig: plt.Figure, ax: plt.Axes, ref: pd.DataFrame, top: float, ylabel: str, title: str
+) -> plt.Figure:
+    """A TTC-per-frame figure's common end: the reference TTC line (s), the y axis 0..``top``,
+    labels, the legend beside the axes."""
+    ax.plot(ref["frame"], ref["ttc_ref_s"], color="black", lw=2.5, label="reference")
+    ax.set(ylim=(0, top), xlabel="frame", ylabel=ylabel, title=title)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    return fig
+
+
 def plot_reference(reference: pd.DataFrame) -> plt.Figure:
     """Distance (m), closing speed (m/s) and reference TTC (s) per frame."""
     fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
@@ -91,12 +103,9 @@ def plot_lidar_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
     flagged = shown[shown["flagged"]]
     ax.scatter(flagged["frame"], flagged["ttc"].fillna(0.98 * top), marker="x", s=60,
                color="crimson", label="flagged", zorder=5)  # fmt: skip
-    ax.plot(ref["frame"], ref["ttc_ref_s"], color="black", lw=2.5, label="reference")
-    ax.set(ylim=(0, top), xlabel="frame", ylabel="TTC (s, clipped)",
-           title="FP.5 lidar TTC (triangles on top: invalid TTC)")  # fmt: skip
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    return fig
+    return _finish_series(
+        fig, ax, ref, top, "TTC (s, clipped)", "FP.5 lidar TTC (triangles on top: invalid TTC)"
+    )
 
 
 def plot_fused_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
@@ -116,12 +125,9 @@ def plot_fused_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
     flagged = t[t["flagged"]]
     ax.scatter(flagged["frame"], fused[t["flagged"]].fillna(0.98 * top).clip(upper=top),
                marker="x", s=70, color="crimson", label="flagged", zorder=5)  # fmt: skip
-    ax.plot(ref["frame"], ref["ttc_ref_s"], color="black", lw=2.5, label="reference")
-    ax.set(ylim=(0, top), xlabel="frame", ylabel="TTC (s, clipped)",
-           title=f"FP.7 fused TTC: {t['setting'].iloc[0]}")  # fmt: skip
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    return fig
+    return _finish_series(
+        fig, ax, ref, top, "TTC (s, clipped)", f"FP.7 fused TTC: {t['setting'].iloc[0]}"
+    )
 
 
 def plot_heatmap(ranking: pd.DataFrame) -> plt.Figure:
@@ -163,12 +169,14 @@ def plot_top_bottom(
     bad = sub[~valid]
     sns.scatterplot(x=bad["frame"], y=np.full(len(bad), 0.98 * top), hue=bad["setting"],
                     hue_order=picked, marker="v", s=50, legend=False, ax=ax)  # fmt: skip
-    ax.plot(ref["frame"], ref["ttc_ref_s"], color="black", lw=2.5, label="reference")
-    ax.set(ylim=(0, top), xlabel="frame", ylabel="camera TTC (s, clipped)",
-           title=f"best {n} and worst {n} settings (triangles on top: invalid TTC)")  # fmt: skip
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    return fig
+    return _finish_series(
+        fig,
+        ax,
+        ref,
+        top,
+        "camera TTC (s, clipped)",
+        f"best {n} and worst {n} settings (triangles on top: invalid TTC)",
+    )
 
 
 def plot_pareto(ranking: pd.DataFrame) -> plt.Figure:
