@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 
@@ -125,4 +126,15 @@ def test_worker_processes_end_with_the_sweep() -> None:
     alive = {c.pid for c in psutil.Process().children(recursive=True)}
     assert pids <= alive  # the pool keeps its workers for reuse
     shut_down_workers(2)
+    assert not pids & {c.pid for c in psutil.Process().children(recursive=True)}
+
+    # without waiting (what a sweep does): the call returns, the workers exit on their own
+    pids = set(Parallel(n_jobs=2, backend="loky")(delayed(os.getpid)() for _ in range(4)))
+    shut_down_workers(2, wait=False)
+    procs = []
+    for pid in pids:
+        with contextlib.suppress(psutil.NoSuchProcess):  # already gone
+            procs.append(psutil.Process(pid))
+    _, alive = psutil.wait_procs(procs, timeout=10)
+    assert not alive  # none still alive after 10 s
     assert not pids & {c.pid for c in psutil.Process().children(recursive=True)}
