@@ -36,6 +36,9 @@ def interim_scores(frames: pd.DataFrame) -> pd.DataFrame:
     return out.sort_values(["median_abs_diff_s", "run_id"], ignore_index=True)
 
 
+#: Settings listed by the summary's second table (the fused ranking of a sweep ranked on
+#: another sensor).
+FUSED_SHOWN = 3
 #: Axes that change only the lidar TTC: a sweep varying nothing else is ranked on the lidar.
 LIDAR_ONLY_AXES = ("lidar_ttc",)
 #: The axis that changes only the fused TTC.
@@ -159,34 +162,54 @@ def summarise_sweep(
     if frames.empty:
         return pd.DataFrame()
     try:
-        scores, title = _best(frames, runs, data_dir, cache_dir)
+        tables = _best(frames, runs, data_dir, cache_dir)
     except Exception as exc:  # the merge stands; the ranking is the report's job
         print(f"\n(no ranking: {type(exc).__name__}: {exc})")
         return pd.DataFrame()
     with pd.option_context("display.width", 200, "display.max_columns", 20):
-        print(f"\nbest {top} settings {title}:")
-        print(scores.head(top).to_string(index=False, float_format="%.3g"))
+        for n, (scores, title) in zip((top, FUSED_SHOWN), tables, strict=False):
+            print(f"\nbest {n} settings {title}:")
+            print(scores.head(n).to_string(index=False, float_format="%.3g"))
+    scores = tables[0][0]
     name = sweep_dir.name
     print(f"\nreports (FP.5, FP.6, ranking with bootstrap intervals):\n"
           f"  python -m experiments.report {sweep_dir} --out results/{name}")  # fmt: skip
     return scores
 
 
-def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> tuple:
-    """(ranked settings, title): against the reference (pooled over the recordings of a sweep
-    over several), else by the interim score."""
+def _ranked(
+    frames: pd.DataFrame, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
+) -> pd.DataFrame:
+    """The runs ranked on ``sensor``: against the one recording's reference, or pooled over
+    several (:func:`pooled_runs`)."""
+    if len(references) > 1:
+        return pooled_runs(frames, runs, references, sensor)
+    return ranked_runs(frames, next(iter(references.values())), sensor)
+
+
+def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list[tuple]:
+    """[(ranked settings, title)]: against the reference (pooled over the recordings of a
+    sweep over several), else by the interim score; when the sweep is ranked on another
+    sensor and holds runs with a fusion, also those runs ranked on the fused TTC."""
     references = sweep_references(frames, runs, data_dir, cache_dir)
     if not references:
         title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
-        return interim_scores(frames), title
-    sensor = ranked_sensor(runs[runs["status"] == "ok"])
+        return [(interim_scores(frames), title)]
+    ok = runs[runs["status"] == "ok"]
+    sensor = ranked_sensor(ok)
     against = "the exact truth" if "ttc_true" in frames else "the reference"
     if len(references) > 1:
-        title = (f"on the {sensor} TTC pooled over {len(references)} recordings, each run "
-                 f"against its own recording's reference (ttc.evaluation.RANKING_RULE)")  # fmt: skip
-        return pooled_runs(frames, runs, references, sensor), title
-    title = f"on the {sensor} TTC against {against} (ttc.evaluation.RANKING_RULE)"
-    return ranked_runs(frames, next(iter(references.values())), sensor), title
+        against = f"its recording's reference, pooled over {len(references)} recordings"
+    rule = "(ttc.evaluation.RANKING_RULE)"
+    tables = [(_ranked(frames, runs, references, sensor),
+               f"on the {sensor} TTC against {against} {rule}")]  # fmt: skip
+    fused = ok[ok["fusion"].astype(str) != "none"] if "fusion" in ok else ok.iloc[0:0]
+    if sensor != "fused" and not fused.empty:
+        mine = frames[frames["run_id"].isin(set(fused["run_id"]))]
+        tables.append((_ranked(mine, fused, references, "fused"),
+                       f"with a fusion, on the fused TTC {rule} (FP.7: the report's "
+                       "fp7_fusion.md)"))  # fmt: skip
+    return tables
 
 
 def main(argv: list[str] | None = None) -> None:

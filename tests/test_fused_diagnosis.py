@@ -72,23 +72,25 @@ def test_no_fused_run_no_table() -> None:
 
 
 @pytest.fixture(scope="module")
-def fusion_report(tmp_path_factory) -> tuple[Path, dict]:
+def fusion_report(tmp_path_factory) -> tuple[Path, dict, str]:
     tmp = tmp_path_factory.mktemp("fp7")
     args = ["-m", "fusion=none,kalman_cv,kalman_ca", "lidar_ttc=median,closest",
-            "detector=fast", "descriptor=brief", "sweep_name=fusion"]  # fmt: skip
+            "detector=fast", "descriptor=brief,orb", "sweep_name=fusion"]  # fmt: skip
     done = hydra_run(args, tmp)
     assert done.returncode == 0, done.stderr[-3000:]
     out = tmp / "report"
+    (out / "summary.txt").parent.mkdir(parents=True)
+    (out / "summary.txt").write_text(done.stdout)
     summary = build_report([tmp / "sweeps" / "fusion"], out, cache_dir=tmp / "cache",
                            pictures=False, log=lambda _: None)  # fmt: skip
     return out, summary
 
 
-@pytest.mark.slow  # a 6-setting sweep in a subprocess, then the report
+@pytest.mark.slow  # a 12-setting sweep in a subprocess, then the report
 def test_the_report_writes_fp7_for_the_fused_runs(fusion_report) -> None:
     out, summary = fusion_report
     compared = pd.read_csv(out / "fp7_fusion.csv")
-    assert len(compared) == 4  # the fused runs only: 2 filters x 2 lidar estimators
+    assert len(compared) == 8  # the fused runs only: 2 filters x 2 lidar x 2 descriptors
     assert set(compared["setting"].str.split("/").str[-1]) == {"kalman_cv", "kalman_ca"}
     assert compared["rank"].tolist() == sorted(compared["rank"])
     assert summary["fp7"][1]["beats_inputs"].tolist() == compared["beats_inputs"].tolist()
@@ -99,7 +101,7 @@ def test_the_report_writes_fp7_for_the_fused_runs(fusion_report) -> None:
     started = t[t["since_start"] >= 0]
     assert started["ttc_fused"].notna().all()  # an estimate every frame once started
     flagged = t[t["flagged"]]
-    assert len(flagged) > 0  # fast/brief's camera TTC is off on some frames of 0-18
+    assert len(flagged) > 0  # fast/brief's and fast/orb's camera TTCs are off on some frames
     assert flagged["reasons"].fillna("").ne("").all()  # every flagged frame explained
     for sensor in ("lidar", "camera"):  # an input blamed is off by the rule's own test
         blamed = flagged[flagged["reasons"].str.contains(f"{sensor}_off")]
@@ -134,3 +136,19 @@ def test_the_fp7_page_in_headless_chromium(fusion_report, tmp_path) -> None:
         image = "document.querySelector('img')"
         assert browser.wait_for(f"{image}.complete && {image}.naturalWidth") >= 600
         assert browser.errors == []
+
+
+@pytest.mark.slow
+def test_the_sweep_summary_adds_the_fused_ranking(fusion_report) -> None:
+    """The sweep varies a camera axis besides the lidar estimator and the fusion: its
+    summary ranks on the camera (:func:`experiments.collect.ranked_sensor`), then lists the
+    fused settings ranked on the fused TTC, in the order of the report's FP.7 table."""
+    out, _ = fusion_report
+    printed = (out / "summary.txt").read_text()
+    assert "settings with a fusion, on the fused TTC" in printed
+    listed = printed.split("on the fused TTC")[1].split("reports (")[0]
+    compared = pd.read_csv(out / "fp7_fusion.csv")
+    order = [rid for rid in compared["run_id"] if rid in listed]
+    assert order == compared["run_id"].head(3).tolist()
+    positions = [listed.index(rid) for rid in order]
+    assert positions == sorted(positions)
