@@ -241,6 +241,19 @@ def test_small_sweep_outputs_carry_the_truth(tmp_path):
     assert {"rank_lo", "rank_hi", "camera_mid_median_3s", "camera_mid_median_24s"} <= set(ranking)
     text = (tmp_path / "report" / "truth.md").read_text()
     assert "Kendall's tau" in text and "4 generated pairs" in text
+    assert "[fp6_camera.md](fp6_camera.md)" in text  # the frames explained, against the truth
+    camera = pd.read_csv(tmp_path / "report" / "fp6_camera_ttc.csv")
+    assert len(camera) == 4  # one camera setting x 4 pairs
+    np.testing.assert_allclose(camera.sort_values("frame")["ttc_ref_s"],
+                               frames.drop_duplicates("frame").sort_values("frame")["ttc_true"])  # fmt: skip
+    fp6_text = (tmp_path / "report" / "fp6_camera.md").read_text()
+    assert "exact truth of the generated pairs" in fp6_text and "reference.md" not in fp6_text
+    way_off = camera[camera["way_off"]]
+    assert len(way_off) >= 1 and way_off["reasons"].fillna("").ne("").all()
+    drawn = list((tmp_path / "report" / "fp6_pictures").glob("*.webp"))
+    assert len(drawn) == 1  # the worst frame's matches (one per detector x descriptor)
+    worst = way_off.loc[way_off["camera_rel_err"].fillna(np.inf).idxmax()]
+    assert drawn[0].stem.endswith(f"frame_{int(worst['frame']):04d}")
 
 
 def test_disjoint_frame_pairs():

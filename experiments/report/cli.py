@@ -74,7 +74,11 @@ def build_report(
         raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
     if ev.has_truth(data.frames):  # a generated recording: judged against its exact truth
         summary = truth.truth_report(data, out, list(real or []))
-        log(f"metrics: {', '.join(map(str, summary['metrics']))}\nreport: {out / 'truth.md'}")
+        ctx = make_context(data_dir, cache_dir)
+        summary["fp6"] = fp6.fp6_report(data, summary["reference"], ctx, out, pictures,
+                                        against=fp6.AGAINST_TRUTH)  # fmt: skip
+        log(f"metrics: {', '.join(map(str, summary['metrics']))}\n"
+            f"reports: {out / 'truth.md'}, {out / 'fp6_camera.md'}")  # fmt: skip
         return summary
     ctx = make_context(data_dir, cache_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from experiments.report.encode import markdown_table, save_webp, write_csv, write_text
@@ -60,11 +61,12 @@ def examine_worst(
     recomputed pair detail) of its ``limit`` worst way-off rows added and ``examined``."""
     t = t.copy()
     t["examined"] = False
-    ref = reference.set_index("frame")["distance_smooth_m"]
+    # a generated recording's truth has no rear distance: background keypoints go uncounted
+    ref = reference.set_index("frame").get("distance_smooth_m", pd.Series(dtype=float))
     for idx, row in ev.worst_order(t).head(limit).iterrows():
         detail = ctx.detail(runs, row["run_id"], int(row["prev_frame"]), int(row["frame"]))
         min_dist = ctx.settings(runs, row["run_id"]).camera_ttc.min_dist
-        geometry = ev.match_geometry(detail, min_dist, float(ref[row["frame"]]))
+        geometry = ev.match_geometry(detail, min_dist, float(ref.get(row["frame"], np.nan)))
         extra = {k: v for k, v in ev.geometry_texts(geometry).items() if v}
         t.at[idx, "examined"] = True
         t.at[idx, "reasons"], t.at[idx, "reason_text"] = ev.with_geometry_reasons(
@@ -89,11 +91,26 @@ def fp6_tables(
     return t, ev.camera_ranking(data.frames, t, reference, ev.N_BOOT)
 
 
+#: What the camera TTCs are judged against, in ``fp6_camera.md``: the reference TTC, or a
+#: generated recording's exact truth.
+AGAINST_REFERENCE = "the reference TTC ([reference.md](reference.md))"
+AGAINST_TRUTH = (
+    "the exact truth of the generated pairs (`ttc_true`, [truth.md](truth.md)); a generated "
+    "pair has no measured rear distance, so keypoints on the background are not counted"
+)
+
+
 def fp6_report(
-    data: SweepData, reference: pd.DataFrame, ctx: Context, out: Path, pictures: bool = True
+    data: SweepData,
+    reference: pd.DataFrame,
+    ctx: Context,
+    out: Path,
+    pictures: bool = True,
+    against: str = AGAINST_REFERENCE,
 ) -> tuple[pd.DataFrame, pd.DataFrame] | None:
     """Write ``fp6_camera.md``, ``fp6_camera_ttc.csv``, ``fp6_ranking.csv``, the plots and
-    the worst frames' match pictures; return (frame table, ranking)."""
+    the worst frames' match pictures; return (frame table, ranking). ``against``: what
+    ``reference`` is, in words (:data:`AGAINST_REFERENCE`, :data:`AGAINST_TRUTH`)."""
     t, ranking = fp6_tables(data, reference, ctx)
     if t.empty:
         return None
@@ -111,7 +128,7 @@ def fp6_report(
             name = picture_stem(row["setting"], row["frame"]) + ".webp"
             image = camera_picture(row, data.runs, ctx)
             drawn.append((row, save_webp(image, out / "fp6_pictures" / name)))
-    write_text(fp6_markdown(data, t, ranking, drawn, out), out / "fp6_camera.md")
+    write_text(fp6_markdown(data, t, ranking, drawn, out, against), out / "fp6_camera.md")
     return t, ranking
 
 
@@ -125,9 +142,13 @@ def _intervals_paragraph(ranking: pd.DataFrame) -> str:
         "autocorrelation: errors of neighbouring frames are correlated, so resampling single "
         "frames would give intervals that are too narrow). Every frame pair with an estimate "
         "counts in the median MiD, the stationary ones included; the relative TTC error and "
-        f"the outlier rate use the frames with a judgeable reference, {uncertain} frame "
-        "pair(s) with a finite reference TTC too uncertain to judge (see reference.md) are "
-        "left out of them."
+        "the outlier rate use the frames with a judgeable reference"
+        + (
+            f", {uncertain} frame pair(s) with a finite reference TTC too uncertain to judge "
+            "(see reference.md) are left out of them."
+            if uncertain
+            else "."
+        )  # fmt: skip
     )
 
 
@@ -168,8 +189,10 @@ def fp6_markdown(
     ranking: pd.DataFrame,
     pictures: list[tuple[pd.Series, Path]],
     out: Path,
+    against: str = AGAINST_REFERENCE,
 ) -> str:
-    """The FP.6 markdown: ranking, best settings, way-off frames with reasons, pictures."""
+    """The FP.6 markdown: ranking, best settings, way-off frames with reasons, pictures;
+    ``against``: what the TTCs are judged against, in words."""
     show = ["rank", "rank_lo", "rank_hi", "setting", "camera_invalid_rate", "camera_mid_median",
             *(f"camera_mid_median_{r}" for r in ev.REGIMES), "camera_outlier_rate",
             "camera_medae_rel", "way_off_frames", "ms_compute_per_frame"]  # fmt: skip
@@ -182,7 +205,7 @@ def fp6_markdown(
     parts = [
         provenance_markdown(data, "FP.6: camera TTC across detector / descriptor settings"),
         "Camera TTC of the lead vehicle per frame for every camera setting in the sweeps, "
-        "judged against the reference TTC ([reference.md](reference.md)).",
+        f"judged against {against}.",
         "",
         f"**Ranking rule** (`ttc.evaluation.RANKING_RULE`): {ev.RANKING_RULE}",
         "",

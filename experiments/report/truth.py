@@ -2,7 +2,9 @@
 ``truth.md``, ``truth_ranking.csv`` (camera settings ranked against the truth, 90 % rank
 intervals, median MiD per target TTC), ``truth_metrics.csv`` (every run × target: camera and
 lidar metrics) and, for each real-sequence ranking given (``fp6_ranking.csv`` of
-``results/kitti_0_18`` …), ``truth_vs_<name>.csv`` with Kendall's τ in ``truth.md``.
+``results/kitti_0_18`` …), ``truth_vs_<name>.csv`` with Kendall's τ in ``truth.md``. The
+FP.6 writer adds ``fp6_camera.md`` and its files against the truth (way-off pairs explained,
+match pictures of the worst).
 ``metrics.parquet`` (against the truth) and ``metrics_by_target.parquet`` go beside each sweep.
 """
 
@@ -112,6 +114,9 @@ def truth_markdown(
         "",
         f"**Ranking rule** (`ttc.evaluation.RANKING_RULE`): {ev.RANKING_RULE}",
         "",
+        "Why a setting misses the truth, frame by frame (way-off pairs, their reasons and the "
+        "matches of the worst): [fp6_camera.md](fp6_camera.md).",
+        "",
         f"## Camera ranking against the truth ({len(ranking)} settings)",
         "",
         markdown_table(ranking[[c for c in show if c in ranking]].head(SHOWN)),
@@ -145,4 +150,5 @@ def truth_report(data: SweepData, out: Path, real: list[Path]) -> dict:
         write_csv(moves, out / f"truth_vs_{name}.csv")
     write_text(truth_markdown(data, ranking, by_target, comparisons), out / "truth.md")
     return {"metrics": written, "ranking": ranking, "by_target": by_target,
+            "reference": reference,
             "comparisons": {name: summary for name, summary, _ in comparisons}}  # fmt: skip
