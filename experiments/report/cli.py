@@ -77,8 +77,13 @@ def build_report(
         ctx = make_context(data_dir, cache_dir)
         summary["fp6"] = fp6.fp6_report(data, summary["reference"], ctx, out, pictures,
                                         against=fp6.AGAINST_TRUTH)  # fmt: skip
+        truth_text = (out / "truth.md").read_text(encoding="utf-8")
+        summary["html"] = html_report(data, summary["reference"], None, summary["fp6"], out,
+                                      truth_text=truth_text) if html else None  # fmt: skip
         log(f"metrics: {', '.join(map(str, summary['metrics']))}\n"
             f"reports: {out / 'truth.md'}, {out / 'fp6_camera.md'}")  # fmt: skip
+        if summary["html"] is not None:
+            log(f"HTML report: {summary['html']}")
         return summary
     ctx = make_context(data_dir, cache_dir)
     out.mkdir(parents=True, exist_ok=True)

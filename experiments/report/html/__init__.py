@@ -34,6 +34,12 @@ FIGURES = ("reference.png", "fp5_lidar_ttc.png", "fp6_heatmap.png", "fp6_ttc_ser
            "fp6_pareto.png", "fp6_rank_intervals.png", "fp7_fusion_ttc.png")  # fmt: skip
 
 
+#: ``fp5.html`` without an FP.5 report: no lidar estimate ran, or the sweep is judged against
+#: an exact truth (its lidar estimators are on the truth page).
+NO_FP5 = "No lidar estimate ran."
+NO_FP5_TRUTH = ("Judged against an exact truth: the lidar estimators per target TTC are on the "
+                '<a href="reference.html">truth page</a>.')  # fmt: skip
+
 #: Settings of a dataset given a page: the best and the worst of its ranking.
 BEST_PAGES, WORST_PAGES = 250, 50
 
@@ -65,10 +71,12 @@ def html_report(
     fp6_tables: tuple[pd.DataFrame, pd.DataFrame] | None,
     out: Path,
     fp7_tables: tuple[pd.DataFrame, pd.DataFrame] | None = None,
+    truth_text: str | None = None,
 ) -> Path:
     """Write the HTML report of the tables the markdown writers returned into ``out/html``
     (replacing an earlier one) and return its ``index.html``. The pictures and figures are
-    those the markdown writers put in ``out``."""
+    those the markdown writers put in ``out``. ``truth_text``: the ``truth.md`` of a sweep
+    judged against an exact truth, shown as its reference page."""
     folder = out / "html"
     shutil.rmtree(folder, ignore_errors=True)
     write_assets(folder, write_text)
@@ -80,7 +88,10 @@ def html_report(
     provenance = pages.provenance_block(data)
     paged = paged_settings(ranking) if ranking is not None and not ranking.empty else set()
     write_text(pages.index_page(provenance, ranking, figures, paged), folder / "index.html")
-    write_text(pages.reference_page(provenance, reference, figures), folder / "reference.html")
+    if truth_text is None:
+        write_text(pages.reference_page(provenance, reference, figures), folder / "reference.html")
+    else:
+        write_text(pages.truth_page(truth_text), folder / "reference.html")
     if t is not None and ranking is not None and not ranking.empty:
         write_text(pages.fp6_page(provenance, t, fp6_pictures, figures, paged),
                    folder / "fp6.html")  # fmt: skip
@@ -99,7 +110,8 @@ def html_report(
         write_text(pages.fp5_page(provenance, data, fp5_table, reference, fp5_pictures, figures),
                    folder / "fp5.html")  # fmt: skip
     else:
-        write_text(pages.page("FP.5 lidar", "<p>No lidar estimate ran.</p>", here="fp5.html"),
+        text = NO_FP5 if truth_text is None else NO_FP5_TRUTH
+        write_text(pages.page("FP.5 lidar", f"<p>{text}</p>", here="fp5.html"),
                    folder / "fp5.html")  # fmt: skip
     if fp7_tables is not None:
         write_text(pages.fp7_page(provenance, *fp7_tables, figures), folder / "fp7.html")

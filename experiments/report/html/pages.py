@@ -348,6 +348,15 @@ def reference_page(provenance: str, reference: pd.DataFrame, figures: dict[str, 
     return page("reference", "\n".join(parts), here="reference.html")
 
 
+def truth_page(truth_text: str) -> str:
+    """``reference.html`` of a sweep judged against an exact truth: its ``truth.md`` (whose
+    link to ``fp6_camera.md`` leads to ``fp6.html`` here)."""
+    text = truth_text.replace(
+        "[fp6_camera.md](fp6_camera.md)", "[FP.6 against the truth](fp6.html)"
+    )
+    return page("exact truth", markdown_html(text), here="reference.html")
+
+
 def picture_files(folder: Path) -> dict[str, str]:
     """File names of the pictures in ``folder`` by stem (empty when it does not exist)."""
     if not folder.is_dir():
