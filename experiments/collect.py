@@ -191,6 +191,8 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list
     """[(ranked settings, title)]: against the reference (pooled over the recordings of a
     sweep over several), else by the interim score; when the sweep is ranked on another
     sensor and holds runs with a fusion, also those runs ranked on the fused TTC."""
+    from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
+
     references = sweep_references(frames, runs, data_dir, cache_dir)
     if not references:
         title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
@@ -203,7 +205,7 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list
     rule = "(ttc.evaluation.RANKING_RULE)"
     tables = [(_ranked(frames, runs, references, sensor),
                f"on the {sensor} TTC against {against} {rule}")]  # fmt: skip
-    fused = ok[ok["fusion"].astype(str) != "none"] if "fusion" in ok else ok.iloc[0:0]
+    fused = fused_runs(ok)
     if sensor != "fused" and not fused.empty:
         mine = frames[frames["run_id"].isin(set(fused["run_id"]))]
         tables.append((_ranked(mine, fused, references, "fused"),
