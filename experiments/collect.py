@@ -170,11 +170,24 @@ def summarise_sweep(
         for n, (scores, title) in zip((top, FUSED_SHOWN), tables, strict=False):
             print(f"\nbest {n} settings {title}:")
             print(scores.head(n).to_string(index=False, float_format="%.3g"))
-    scores = tables[0][0]
     name = sweep_dir.name
-    print(f"\nreports (FP.5, FP.6, ranking with bootstrap intervals):\n"
+    print(f"\nreports ({report_contents(frames, runs)}):\n"
           f"  python -m experiments.report {sweep_dir} --out results/{name}")  # fmt: skip
-    return scores
+    return tables[0][0]
+
+
+def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
+    """What ``experiments.report`` writes for this sweep, in a few words."""
+    from experiments.reference_store import recording_of  # noqa: PLC0415
+    from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
+
+    ok = runs[runs["status"] == "ok"]
+    if "ttc_true" in frames:
+        return "truth.md, FP.6 against the truth, ranking with bootstrap intervals, HTML"
+    if recording_of(ok).nunique() > 1:
+        return "FP.5 / FP.6 per drive, drives.md ranked per drive and pooled, HTML"
+    fused = ", FP.7 fused TTC" if not fused_runs(ok).empty else ""
+    return f"FP.5, FP.6{fused}, ranking with bootstrap intervals, HTML"
 
 
 def _ranked(

@@ -114,6 +114,7 @@ def test_the_sweep_summary_and_tracking_judge_each_run_on_its_own_drive(
     table = summarise_sweep(sweep_dir, data_dir=root, cache_dir=cache_dir)
     printed = capsys.readouterr().out
     assert "pooled over 2 recordings" in printed and "interim score" not in printed
+    assert "drives.md ranked per drive and pooled" in printed  # what the report will write
     assert len(table) == 2 and (table["n_frames"] == 44).all()
     assert set(table["lidar_ttc"]) == {"median", "closest"}
     for estimator, row in table.set_index("lidar_ttc").iterrows():

@@ -146,6 +146,7 @@ def test_the_sweep_summary_adds_the_fused_ranking(fusion_report) -> None:
     out, _ = fusion_report
     printed = (out / "summary.txt").read_text()
     assert "settings with a fusion, on the fused TTC" in printed
+    assert "reports (FP.5, FP.6, FP.7 fused TTC," in printed
     listed = printed.split("on the fused TTC")[1].split("reports (")[0]
     compared = pd.read_csv(out / "fp7_fusion.csv")
     order = [rid for rid in compared["run_id"] if rid in listed]

@@ -217,6 +217,7 @@ def test_small_sweep_outputs_carry_the_truth(tmp_path):
             "lidar_ttc=median,closest", "sweep_name=st"]  # fmt: skip
     done = run(["experiments.run", "-m", *args], env)
     assert done.returncode == 0, done.stderr[-3000:]
+    assert "reports (truth.md, FP.6 against the truth" in done.stdout
     sweep = tmp_path / "st"
     frames = pd.read_parquet(sweep / "frames.parquet")
     documented = {name for name, *_ in FRAME_COLUMNS}  # the truth's are the only extra columns
