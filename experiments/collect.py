@@ -61,10 +61,18 @@ def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame, sensor: str) -> p
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
     ranked = ev.rank_runs(ev.run_metrics(frames, reference), sensor)
-    keys = [f"{sensor}_{k}" for k in ev.RANKING_KEYS]
-    columns = ["rank", "run_id", *SETTING_COLUMNS, *keys, f"{sensor}_outlier_rate",
-               f"{sensor}_medae_rel", "n_frames", "ms_per_frame"]  # fmt: skip
+    columns = [*summary_columns(sensor), "ms_per_frame"]
     return ranked[[c for c in columns if c in ranked]]
+
+
+def summary_columns(sensor: str) -> list[str]:
+    """The columns the summary shows of a ranking on ``sensor``: rank, run, axes, the ranking
+    keys, outlier rate, median relative error, frames."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+
+    keys = [f"{sensor}_{k}" for k in ev.RANKING_KEYS]
+    return ["rank", "run_id", *SETTING_COLUMNS, *keys, f"{sensor}_outlier_rate",
+            f"{sensor}_medae_rel", "n_frames"]  # fmt: skip
 
 
 def sweep_references(
@@ -91,18 +99,13 @@ def pooled_runs(
     (:func:`ttc.evaluation.drive_rankings`, each run against its own recording's reference;
     no bootstrap intervals: the report's ``drives.md`` has them); ``run_id`` is the setting
     id shared by its runs on every recording."""
-    from experiments.reference_store import recording_of  # noqa: PLC0415
-    from experiments.report.drives import drive_name, setting_of  # noqa: PLC0415
+    from experiments.report.drives import drive_name, runs_drive_rankings  # noqa: PLC0415
     from ttc import evaluation as ev  # noqa: PLC0415
 
-    ok = runs[runs["status"] == "ok"]
-    drive = recording_of(ok).map(drive_name).to_dict()
     named = {drive_name(sequence): ref for sequence, ref in references.items()}
-    table = ev.drive_rankings(frames, drive, setting_of(ok).to_dict(), named, sensor, n_boot=0)
+    table = runs_drive_rankings(frames, runs, named, sensor, n_boot=0)
     pooled = table[table["drive"] == ev.POOLED]
-    keys = [f"{sensor}_{k}" for k in ev.RANKING_KEYS]
-    columns = ["rank", "run_id", *SETTING_COLUMNS, *keys, f"{sensor}_outlier_rate",
-               f"{sensor}_medae_rel", "n_frames"]  # fmt: skip
+    columns = summary_columns(sensor)
     return pooled[[c for c in columns if c in pooled]].sort_values("rank", ignore_index=True)
 
 

@@ -76,6 +76,12 @@ def recording_of(runs: pd.DataFrame) -> pd.Series:
     return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
 
 
+def run_ids_by_recording(runs: pd.DataFrame) -> dict[str, list[str]]:
+    """The run ids of each recording (``dataset.sequence``) of ``runs``, recordings sorted."""
+    recording = recording_of(runs)
+    return {seq: list(recording.index[recording == seq]) for seq in sorted(set(recording))}
+
+
 def recording_references(
     frames: pd.DataFrame,
     runs: pd.DataFrame,
@@ -87,10 +93,9 @@ def recording_references(
     its runs' ``frames``), else the recording's reference TTC (:func:`sequence_reference`).
     ``data_dir`` / ``cache``: None for the configured data root and stage cache."""
     root = Path(data_dir) if data_dir else default_data_root()
-    recording = recording_of(runs)
     out = {}
-    for sequence in sorted(set(recording)):
-        mine = frames[frames["run_id"].isin(recording.index[recording == sequence])]
+    for sequence, ids in run_ids_by_recording(runs).items():
+        mine = frames[frames["run_id"].isin(ids)]
         if ev.has_truth(mine):
             out[sequence] = ev.truth_reference(mine)
             continue

@@ -33,7 +33,7 @@ from omegaconf import DictConfig
 
 from experiments import store
 from experiments.config import data_root
-from experiments.reference_store import recording_of, recording_references
+from experiments.reference_store import recording_references, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.cache import StageCache
 from ttc.pipeline import AXES
@@ -61,9 +61,9 @@ def _metrics_of(
         return pd.DataFrame(columns=["run_id"])
     frames = ev.with_compute_times(frames)
     cache = StageCache(cache_dir) if cache_dir else None
-    recording = recording_of(ok)
+    ids = run_ids_by_recording(ok)
     parts = [
-        ev.run_metrics(frames[frames["run_id"].isin(recording.index[recording == seq])], ref)
+        ev.run_metrics(frames[frames["run_id"].isin(ids[seq])], ref)
         for seq, ref in recording_references(frames, ok, data_dir, cache).items()
     ]
     return pd.concat(parts, ignore_index=True)

@@ -11,7 +11,11 @@ from pathlib import Path
 import pandas as pd
 
 from experiments.config import setting_hash
-from experiments.reference_store import recording_of, recording_references
+from experiments.reference_store import (
+    recording_of,
+    recording_references,
+    run_ids_by_recording,
+)
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData
@@ -47,10 +51,8 @@ def setting_of(runs: pd.DataFrame) -> pd.Series:
 
 def split_by_recording(data: SweepData) -> dict[str, SweepData]:
     """One :class:`SweepData` per recording of ``data`` (by drive name, sorted)."""
-    recording = recording_of(data.runs)
     parts = {}
-    for sequence in sorted(set(recording)):
-        ids = set(recording.index[recording == sequence])
+    for sequence, ids in run_ids_by_recording(data.runs).items():
         runs = data.runs[data.runs["run_id"].isin(ids)].reset_index(drop=True)
         frames = data.frames
         if not frames.empty:
@@ -73,10 +75,10 @@ def sweep_metrics_by_drive(
 ) -> pd.DataFrame:
     """:func:`ttc.evaluation.sweep_metrics` of the runs of each drive against its own
     reference, with a ``drive`` column, concatenated (sorted by run id)."""
-    drive = recording_of(runs).map(drive_name)
+    by_drive = {drive_name(seq): ids for seq, ids in run_ids_by_recording(runs).items()}
     parts = []
     for name, reference in references.items():
-        ids = set(drive.index[drive == name])
+        ids = by_drive.get(name, [])
         mine = runs[runs["run_id"].isin(ids)]
         if mine.empty:
             continue
@@ -89,8 +91,20 @@ def drives_table(
     data: SweepData, references: dict[str, pd.DataFrame], sensor: str, n_boot: int = ev.N_BOOT
 ) -> pd.DataFrame:
     """:func:`ttc.evaluation.drive_rankings` of the ok runs of ``data`` on ``sensor``."""
-    ok = data.runs[data.runs["status"] == "ok"]
-    frames = data.frames[data.frames["run_id"].isin(ok["run_id"])]
+    return runs_drive_rankings(data.frames, data.runs, references, sensor, n_boot)
+
+
+def runs_drive_rankings(
+    frames: pd.DataFrame,
+    runs: pd.DataFrame,
+    references: dict[str, pd.DataFrame],
+    sensor: str,
+    n_boot: int = ev.N_BOOT,
+) -> pd.DataFrame:
+    """:func:`ttc.evaluation.drive_rankings` of the ok runs of ``runs`` (run records) and
+    their ``frames`` on ``sensor``; ``references`` by drive name (:func:`drive_name`)."""
+    ok = runs[runs["status"] == "ok"]
+    frames = frames[frames["run_id"].isin(ok["run_id"])]
     drive = recording_of(ok).map(drive_name)
     return ev.drive_rankings(
         frames, drive.to_dict(), setting_of(ok).to_dict(), references, sensor, n_boot
