@@ -18,13 +18,12 @@ from pathlib import Path
 from typing import Any
 
 from hydra.core.global_hydra import GlobalHydra
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from experiments.config import data_root
+from experiments.config import data_root, swept_overrides
 from experiments.progress import PROGRESS_DIR, PROGRESS_ENV, progress_dir, progress_outcomes
 from experiments.store import StoreError
 
@@ -32,24 +31,14 @@ from experiments.store import StoreError
 def count_jobs(config: DictConfig) -> int | None:
     """Number of jobs the basic sweeper will launch, or None when it cannot be told."""
     try:
-        params = config.hydra.sweeper.get("params") or {}
-        args = [f"{k}={v}" for k, v in params.items()] + list(config.hydra.overrides.task)
-        overrides = OverridesParser.create().parse_overrides(args)
         loader = GlobalHydra.instance().config_loader()
-        sizes: dict[str, int] = {}
-        for override in overrides:
-            if not override.is_sweep_override():
-                sizes.pop(override.get_key_element(), None)
-                continue
+        total = 1
+        for override in swept_overrides(config).values():
             if override.is_discrete_sweep() and hasattr(override.value(), "filter"):  # glob
                 options = loader.get_group_options(override.key_or_group)
-                n = len(override.value().filter(options))
+                total *= len(override.value().filter(options))
             else:
-                n = len(list(override.sweep_string_iterator()))
-            sizes[override.get_key_element()] = n
-        total = 1
-        for n in sizes.values():
-            total *= n
+                total *= len(list(override.sweep_string_iterator()))
         return total
     except Exception:  # progress is a nicety: never fail a sweep over it
         return None

@@ -17,6 +17,7 @@ from typing import Any
 
 import pandas as pd
 from hydra.core.config_store import ConfigStore
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from experiments import datasets, paths
@@ -177,6 +178,20 @@ def settings_from_config(cfg: DictConfig) -> Settings:
 def data_root(cfg: DictConfig) -> Path:
     """The dataset's data root, resolved against the project root when relative."""
     return paths.resolve(cfg.dataset.root)
+
+
+def swept_overrides(config: DictConfig) -> dict[str, Any]:
+    """The sweep overrides of a multirun's master ``config``, by key element: the sweeper's
+    ``params``, then the command line's; the last override of a key wins (a plain value ends
+    its sweep). Values are Hydra ``Override`` objects."""
+    params = config.hydra.sweeper.get("params") or {}
+    args = [f"{k}={v}" for k, v in params.items()] + list(config.hydra.overrides.task)
+    swept: dict[str, Any] = {}
+    for override in OverridesParser.create().parse_overrides(args):
+        swept.pop(override.get_key_element(), None)
+        if override.is_sweep_override():
+            swept[override.get_key_element()] = override
+    return swept
 
 
 def sequence_dir(cfg: DictConfig) -> Path:

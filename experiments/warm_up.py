@@ -17,10 +17,14 @@ from __future__ import annotations
 
 import logging
 
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig
 
-from experiments.config import prepared_frame_range, sequence_dir, settings_from_config
+from experiments.config import (
+    prepared_frame_range,
+    sequence_dir,
+    settings_from_config,
+    swept_overrides,
+)
 from ttc.cache import StageCache
 from ttc.stages import shared_frame_tasks
 
@@ -30,12 +34,8 @@ SHARED_GROUPS = ("dataset", "objects", "lidar")
 
 
 def swept_keys(master: DictConfig) -> set[str]:
-    """The keys a multirun sweeps: command-line sweep overrides and the sweeper's params."""
-    parser = OverridesParser.create()
-    task = [str(o) for o in master.hydra.overrides.task]
-    keys = {o.key_or_group for o in parser.parse_overrides(task) if o.is_sweep_override()}
-    params = master.hydra.sweeper.get("params") or {}
-    return keys | {str(k) for k in params}
+    """The keys a multirun sweeps (:func:`experiments.config.swept_overrides`)."""
+    return set(swept_overrides(master))
 
 
 def warm_up(master: DictConfig) -> None:
