@@ -182,10 +182,11 @@ def summarise_sweep(
 def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
     """What ``experiments.report`` writes for this sweep, in a few words."""
     from experiments.reference_store import recording_of  # noqa: PLC0415
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
     ok = runs[runs["status"] == "ok"]
-    if "ttc_true" in frames:
+    if ev.has_truth(frames):
         return "truth.md, FP.6 against the truth, ranking with bootstrap intervals, HTML"
     if recording_of(ok).nunique() > 1:
         return "FP.5 / FP.6 per drive, drives.md ranked per drive and pooled, HTML"
@@ -207,6 +208,7 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list
     """[(ranked settings, title)]: against the reference (pooled over the recordings of a
     sweep over several), else by the interim score; when the sweep is ranked on another
     sensor and holds runs with a fusion, also those runs ranked on the fused TTC."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
     references = sweep_references(frames, runs, data_dir, cache_dir)
@@ -215,7 +217,7 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list
         return [(interim_scores(frames), title)]
     ok = runs[runs["status"] == "ok"]
     sensor = ranked_sensor(ok)
-    against = "the exact truth" if "ttc_true" in frames else "the reference"
+    against = "the exact truth" if ev.has_truth(frames) else "the reference"
     if len(references) > 1:
         against = f"its recording's reference, pooled over {len(references)} recordings"
     rule = "(ttc.evaluation.RANKING_RULE)"
