@@ -52,8 +52,9 @@ from ttc.matching import (
     uses_descriptors,
 )
 from ttc.objects import ObjectDetectorParams
+from ttc.settings import CACHED_STAGE_NAMES as CACHED_STAGES
 from ttc.stages import (  # noqa: F401 (re-exported: the stage table and inputs of a run)
-    CACHED_STAGES,
+
     CHUNK_FRAMES,
     LIBRARY_VERSIONS,
     STAGE_VERSIONS,

@@ -1,6 +1,6 @@
 """The cached stages of one setting (objects, lidar, keypoints, descriptors, matches) and the
 order they are produced in: the cache keys, the chunked streaming over a frame range, and the
-list of input files a run reads. Used by :mod:`ttc.pipeline`.
+list of input files a run reads. Used by :mod:`ttc.engine`.
 
 ============  ==========================================================  ==============
 stage         key (besides its version and the OpenCV and numpy versions)  content
@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import cv2
 import numpy as np
@@ -51,12 +51,11 @@ from ttc.lidar import crop_to_lane
 from ttc.matching import knn_candidates, tracks_to_arrays, uses_descriptors
 from ttc.objects import detect_objects, model_identity
 from ttc.plugins import USER, code_identity
+from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
 
-if TYPE_CHECKING:
-    from ttc.pipeline import FrameRange, Settings
 
-STAGE_VERSIONS = {"objects": 1, "lidar": 1, "keypoints": 1, "descriptors": 1, "matches": 1}
-CACHED_STAGES = tuple(STAGE_VERSIONS)
+#: Version of each cached stage (:data:`ttc.settings.CACHED_STAGES`).
+STAGE_VERSIONS = dict.fromkeys(CACHED_STAGE_NAMES, 1)
 
 
 def _params(obj: Any) -> dict[str, Any]:
