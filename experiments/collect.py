@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 
 from experiments import progress, store
 from experiments.finished import nothing_computed_line, summary_head
-from ttc.pipeline import SETTING_AXES
+from ttc.settings import SETTING_AXES
 
 SETTING_COLUMNS = list(SETTING_AXES)
 

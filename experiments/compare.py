@@ -25,7 +25,7 @@ from experiments.report.encode import markdown_table, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData, load_sweeps, make_context, reference_for
 from ttc import evaluation as ev
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 #: Columns of the comparison shown in the markdown (per sensor ``s``), besides the key.
 SHOWN = ("rank_a", "rank_b", "{s}_outlier_rate_a", "{s}_outlier_rate_b",

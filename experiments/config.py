@@ -32,7 +32,7 @@ from ttc.lidar import LaneCropParams
 from ttc.lidar_ttc import LidarTTCParams
 from ttc.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
 from ttc.objects import ObjectDetectorParams
-from ttc.pipeline import AXES, FrameRange, Settings
+from ttc.settings import AXES, FrameRange, Settings
 
 #: Config groups whose options each pick one parameter class by name.
 NAMED_GROUPS: dict[str, dict[str, type]] = {

@@ -14,7 +14,7 @@ import pandas as pd
 
 from experiments.config import axis_values, setting_hash
 from experiments.provenance import code_version, machine, package_versions
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 
 def now() -> str:

@@ -57,7 +57,9 @@ from experiments.records import now, peak_rss_mb, record_head, row_statistics, w
 from experiments.warm_up import warm_up  # noqa: F401 (the ttc launcher's workers call it)
 from ttc.cache import StageCache
 from ttc.descriptors import InvalidCombinationError
-from ttc.pipeline import AXES, input_files, run_setting
+from ttc.engine import run_setting
+from ttc.settings import AXES
+from ttc.stages import input_files
 
 register_configs()
 

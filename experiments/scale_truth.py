@@ -55,8 +55,8 @@ from ttc.frames import (
 from ttc.keypoints import DETECTORS
 from ttc.lidar import assign_points_to_boxes, lane_mask, lead_box_of, project_to_image
 from ttc.objects import detect_objects, model_identity
-from ttc.pipeline import FrameRange, Settings
 from ttc.scale_truth import ScaleTruthParams, SyntheticPair, make_pair
+from ttc.settings import FrameRange, Settings
 from ttc.stages import FrameStages
 
 #: Bump when the written folder's layout changes (the code hashes cover the rest).

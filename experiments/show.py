@@ -43,10 +43,12 @@ from experiments.run import check_data
 from ttc import draw
 from ttc import evaluation as ev
 from ttc.cache import StageCache
+from ttc.engine import pair_detail
 from ttc.frames import FrameDataError, frame_files, load_calibration, read_lidar_scan
 from ttc.lidar import project_to_image
 from ttc.objects import coco_names
-from ttc.pipeline import AXES, FrameRange, PairDetail, Settings, pair_detail
+from ttc.rows import PairDetail
+from ttc.settings import AXES, FrameRange, Settings
 
 register_configs()
 

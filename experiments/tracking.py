@@ -36,7 +36,7 @@ from experiments.config import data_root
 from experiments.reference_store import recording_references, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.cache import StageCache
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 #: Tag names of the child runs (``ttc.`` prefix: the project's own).
 TAG_RUN_ID, TAG_SWEEP, TAG_ROWS, TAG_STATUS = "ttc.run_id", "ttc.sweep", "ttc.rows", "ttc.status"

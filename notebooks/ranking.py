@@ -28,7 +28,7 @@ from IPython.display import Markdown, display
 
 from experiments.report.load import open_sweep
 from ttc import evaluation as ev
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 # %% tags=["parameters"]
 SWEEP_DIR = os.environ.get("TTC_SWEEP_DIR", "sweeps/fp6_grid_kitti_0_18")

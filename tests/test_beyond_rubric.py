@@ -25,14 +25,14 @@ from experiments.config import (
 )
 from tests.conftest import PROJECT_ROOT
 from ttc import fusion, reasons
-from ttc.batch import MEMBER, run_settings
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS, NO_DESCRIPTOR
+from ttc.engine import MEMBER, run_setting, run_settings
 from ttc.fusion import FusionParams
 from ttc.keypoints import DETECTORS, FastParams
 from ttc.klt import KltParams
 from ttc.matching import NO_SELECTOR
-from ttc.pipeline import FrameRange, Settings, run_setting
+from ttc.settings import FrameRange, Settings
 
 #: Run ids of settings stored in sweeps before sub-pixel keypoints, KLT and fusion existed
 #: (commit 50ad91a): they must not change.

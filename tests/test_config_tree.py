@@ -18,7 +18,7 @@ from experiments.config import (
     settings_from_config,
 )
 from tests.conftest import PROJECT_ROOT
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 CONF = PROJECT_ROOT / "conf"
 #: Config groups chosen with ``group=option``: every axis (one folder each) and the launcher.

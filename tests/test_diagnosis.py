@@ -10,7 +10,7 @@ import pytest
 from ttc import evaluation as ev
 from ttc.lidar_ttc import LidarTTCParams
 from ttc.matching import Matches
-from ttc.pipeline import PairDetail
+from ttc.rows import PairDetail
 
 # --------------------------------------------------------------------------- reason tables
 

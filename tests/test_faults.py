@@ -23,6 +23,7 @@ from tests.conftest import PROJECT_ROOT
 from ttc import reasons, stages
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS
+from ttc.engine import run_setting
 from ttc.frames import (
     CAM_TO_CAM,
     VELO_TO_CAM,
@@ -31,7 +32,7 @@ from ttc.frames import (
     load_calibration,
 )
 from ttc.keypoints import DETECTORS
-from ttc.pipeline import FrameRange, Settings, run_setting
+from ttc.settings import FrameRange, Settings
 
 SEQUENCE = Path("kitti") / "2011_09_26"
 FRAMES = range(5)  # frames 0-4

@@ -22,8 +22,8 @@ from experiments.config import (
 )
 from tests.conftest import PROJECT_ROOT
 from ttc.cache import StageCache
+from ttc.engine import run_setting
 from ttc.frames import CAM_TO_CAM, IMAGE_DIR, LIDAR_DIR, VELO_TO_CAM, FrameDataError, frame_files
-from ttc.pipeline import run_setting
 
 DATE = "2011_09_26"
 START = dt.datetime(2011, 9, 26, 13, 2, 44)

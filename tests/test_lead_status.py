@@ -14,9 +14,9 @@ from experiments.reference_store import sequence_reference
 from tests.test_kitti_raw import composed, make_drive
 from ttc import evaluation as ev
 from ttc.cache import StageCache
+from ttc.engine import run_setting
 from ttc.evaluation.reference import reference_ttc
 from ttc.frames import frame_files
-from ttc.pipeline import run_setting
 
 #: The made-up drive: the shared frames 0–23; scans 10 and 11 without the lead car.
 EMPTY = (10, 11)

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from ttc import evaluation as ev
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 INF, NAN = np.inf, np.nan
 DT = 0.1

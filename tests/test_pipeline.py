@@ -13,10 +13,11 @@ from tests.conftest import copy_frames
 from ttc import reasons
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS, InvalidCombinationError
+from ttc.engine import run_setting
 from ttc.frames import frame_files
 from ttc.keypoints import DETECTORS
 from ttc.lidar_ttc import LidarTTCParams
-from ttc.pipeline import AXES, FrameRange, Settings, run_setting
+from ttc.settings import AXES, FrameRange, Settings
 
 RUN_COLUMNS = {"run_id", "sweep_id", "git_commit", *AXES}
 

@@ -18,9 +18,9 @@ from experiments.scale_truth import materialise
 from experiments.schema import FRAME_COLUMNS
 from tests.conftest import PROJECT_ROOT
 from ttc import evaluation as ev
-from ttc.batch import MEMBER, run_settings
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS
+from ttc.engine import MEMBER, run_settings
 from ttc.frames import (
     TRUTH_COLUMNS,
     TRUTH_FILE,
@@ -31,8 +31,8 @@ from ttc.frames import (
 )
 from ttc.keypoints import DETECTORS
 from ttc.lidar_ttc import LidarTTCParams
-from ttc.pipeline import FrameRange, Settings
 from ttc.scale_truth import ScaleTruthParams, make_pair, scale_image, scale_matrix
+from ttc.settings import FrameRange, Settings
 
 SOURCE = 20
 CENTRE = (620.0, 190.0)

@@ -19,9 +19,11 @@ from ttc import draw
 from ttc import evaluation as ev
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS
+from ttc.engine import pair_detail
 from ttc.keypoints import DETECTORS
 from ttc.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams
-from ttc.pipeline import FrameRange, PairDetail, Settings, pair_detail
+from ttc.rows import PairDetail
+from ttc.settings import FrameRange, Settings
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 RED, GREEN = (0, 0, 255), (0, 255, 0)

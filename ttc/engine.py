@@ -446,8 +446,13 @@ class _SharedPair:
             roi = self.obj[self.curr]["roi"][curr_box]
             self.memo["fp3"][fp3_key] = _timed(
                 lambda: filter_box_matches(
-                    self.xy_prev, self.xy_curr, selected.prev_idx, selected.curr_idx,
-                    roi, s.box_matching.shrink, s.keypoint_filter,
+                    self.xy_prev,
+                    self.xy_curr,
+                    selected.prev_idx,
+                    selected.curr_idx,
+                    roi,
+                    s.box_matching.shrink,
+                    s.keypoint_filter,
                 )  # fmt: skip
             )
         filt, ms_fp3 = self.memo["fp3"][fp3_key]

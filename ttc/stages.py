@@ -53,7 +53,6 @@ from ttc.objects import detect_objects, model_identity
 from ttc.plugins import USER, code_identity
 from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
 
-
 #: Version of each cached stage (:data:`ttc.settings.CACHED_STAGES`).
 STAGE_VERSIONS = dict.fromkeys(CACHED_STAGE_NAMES, 1)
 

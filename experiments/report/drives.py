@@ -20,7 +20,7 @@ from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData
 from ttc import evaluation as ev
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 #: ``dataset`` keys that name the drive and its frames: left out of the pooled setting id.
 DRIVE_KEYS = ("sequence", "date", "drive", "first", "last")

@@ -12,7 +12,7 @@ import pandas as pd
 
 from experiments.provenance import code_version, machine, package_versions
 from experiments.report.load import SweepData
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 
 def _unique(values: Iterable[Any]) -> str:

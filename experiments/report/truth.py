@@ -19,7 +19,7 @@ from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import SweepData
 from ttc import evaluation as ev
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 #: Settings listed per table of ``truth.md``; movers listed per comparison.
 SHOWN = 15

@@ -14,11 +14,12 @@ import pytest
 
 from ttc.cache import StageCache
 from ttc.descriptors import DESCRIPTORS
+from ttc.engine import run_setting
 from ttc.frames import load_calibration, load_frame
 from ttc.keypoints import DETECTORS
 from ttc.lidar import LaneCropParams, associate_lidar
 from ttc.objects import ObjectDetectorParams, detect_objects
-from ttc.pipeline import FrameRange, Settings, run_setting
+from ttc.settings import FrameRange, Settings
 
 
 @pytest.fixture(scope="module")

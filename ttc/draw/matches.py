@@ -25,7 +25,7 @@ from ttc.draw.raster import (
 )
 from ttc.evaluation.lead import lead_boxes, lead_row
 from ttc.keypoints import X, Y
-from ttc.pipeline import PairDetail
+from ttc.rows import PairDetail
 
 
 def _subsample(idx: np.ndarray, n: int) -> np.ndarray:

@@ -26,7 +26,7 @@ from ttc.draw.raster import (
     splat,
 )
 from ttc.evaluation.lead import lead_row
-from ttc.pipeline import PairDetail
+from ttc.rows import PairDetail
 
 
 def box_labels(objects: dict[str, np.ndarray], names: Sequence[str] | None = None) -> list[str]:

@@ -35,58 +35,6 @@ from ttc.evaluation.bootstrap import (
     rank_replicates,
     tied_for_first,
 )
-from ttc.evaluation.compare import COMPARED_METRICS, compare_runs
-from ttc.evaluation.drives import (
-    DRIVE_FRAME_STRIDE,
-    POOLED,
-    drive_rankings,
-    pooled_frames,
-    stack_drives,
-)
-from ttc.evaluation.errors import (
-    CACHED_STAGE_INPUTS,
-    FALSE_ALARM_S,
-    NOT_JUDGED_COLUMNS,
-    OUTLIER_REL,
-    SENSORS,
-    WARNING_TTC_S,
-    attach_reference,
-    frame_errors,
-    lead_rows,
-    mid_error,
-    stage_time_columns,
-    with_compute_times,
-)
-from ttc.evaluation.lead_status import (
-    LEAD_CHANGE,
-    LEAD_STATUSES,
-    NO_LEAD,
-    lead_segments,
-    lead_status,
-    not_judged_frames,
-    not_judged_text,
-)
-from ttc.evaluation.metrics import judged_frames, run_metrics
-from ttc.evaluation.ranking import RANKING_KEYS, RANKING_RULE, rank_runs, ranking_time
-from ttc.evaluation.reference import (
-    MAX_REF_REL_SD,
-    MID_SCALE,
-    REFERENCE_CAVEATS,
-    REFERENCE_SUMMARY,
-    REGIMES,
-    find_stop,
-    lead_distance_series,
-    lead_points,
-    rear_distance,
-    reference_for_sequence,
-    reference_ttc,
-)
-
-# isort: split
-from ttc.evaluation.reference import MIN_CLOSING_SPEED_MPS, euclidean_clusters
-
-# isort: split
-# The diagnoses import the names above from this namespace: they come after them.
 from ttc.evaluation.camera_diagnosis import (
     BACKGROUND_M,
     BACKGROUND_SHARE,
@@ -114,6 +62,7 @@ from ttc.evaluation.camera_diagnosis import (
     with_geometry_reasons,
     worst_order,
 )
+from ttc.evaluation.compare import COMPARED_METRICS, compare_runs
 from ttc.evaluation.diagnosis import (
     CAMERA_AXES,
     combine_reasons,
@@ -123,7 +72,37 @@ from ttc.evaluation.diagnosis import (
     sweep_metrics,
     with_reasons,
 )
+from ttc.evaluation.drives import (
+    DRIVE_FRAME_STRIDE,
+    POOLED,
+    drive_rankings,
+    pooled_frames,
+    stack_drives,
+)
+from ttc.evaluation.errors import (
+    CACHED_STAGE_INPUTS,
+    FALSE_ALARM_S,
+    NOT_JUDGED_COLUMNS,
+    OUTLIER_REL,
+    SENSORS,
+    WARNING_TTC_S,
+    attach_reference,
+    frame_errors,
+    lead_rows,
+    mid_error,
+    stage_time_columns,
+    with_compute_times,
+)
 from ttc.evaluation.lead import box_points, lead_box_of, lead_boxes, lead_clouds, lead_row
+from ttc.evaluation.lead_status import (
+    LEAD_CHANGE,
+    LEAD_STATUSES,
+    NO_LEAD,
+    lead_segments,
+    lead_status,
+    not_judged_frames,
+    not_judged_text,
+)
 from ttc.evaluation.lidar_diagnosis import (
     AHEAD_M,
     ANOMALY_M,
@@ -147,6 +126,23 @@ from ttc.evaluation.lidar_diagnosis import (
     other_object_effect,
     other_object_pairs,
     other_object_text,
+)
+from ttc.evaluation.metrics import judged_frames, run_metrics
+from ttc.evaluation.ranking import RANKING_KEYS, RANKING_RULE, rank_runs, ranking_time
+from ttc.evaluation.reference import (
+    MAX_REF_REL_SD,
+    MID_SCALE,
+    MIN_CLOSING_SPEED_MPS,
+    REFERENCE_CAVEATS,
+    REFERENCE_SUMMARY,
+    REGIMES,
+    euclidean_clusters,
+    find_stop,
+    lead_distance_series,
+    lead_points,
+    rear_distance,
+    reference_for_sequence,
+    reference_ttc,
 )
 from ttc.evaluation.truth import (
     ALL_TARGETS,

@@ -4,7 +4,7 @@ A frame of a camera setting is **way off** when its relative error exceeds
 :data:`WAY_OFF_REL`, its TTC is invalid where the reference is finite, or it is a false alarm.
 Reasons come from the rows (:func:`camera_rules`) and, for a bounded number of the worst rows,
 from the geometry of the lead box's kept matches (:func:`match_geometry` on a
-:class:`~ttc.pipeline.PairDetail` the caller computed). Tables and arrays in, tables out.
+:class:`~ttc.rows.PairDetail` the caller computed). Tables and arrays in, tables out.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from ttc import reasons
 from ttc.camera_ttc import distance_ratios
-from ttc.evaluation import N_BOOT, bootstrap_rank_intervals, rank_runs, run_metrics
+from ttc.evaluation.bootstrap import N_BOOT, bootstrap_rank_intervals
 from ttc.evaluation.diagnosis import (
     CAMERA_AXES,
     code_texts,
@@ -26,8 +26,10 @@ from ttc.evaluation.diagnosis import (
     setting_labels,
     with_reasons,
 )
+from ttc.evaluation.metrics import run_metrics
+from ttc.evaluation.ranking import rank_runs
 from ttc.keypoints import X, Y
-from ttc.pipeline import PairDetail
+from ttc.rows import PairDetail
 
 #: Camera TTC "way off": relative error above this (or invalid where the reference is finite).
 WAY_OFF_REL = 0.5

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from ttc.evaluation.ranking import RANKING_KEYS
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 #: Metrics whose change ``b − a`` :func:`compare_runs` reports (per sensor, then overall).
 COMPARED_METRICS = (

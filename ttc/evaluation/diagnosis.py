@@ -16,8 +16,9 @@ import numpy as np
 import pandas as pd
 
 from ttc import reasons
-from ttc.evaluation import attach_reference, frame_errors, run_metrics
-from ttc.pipeline import AXES
+from ttc.evaluation.errors import attach_reference, frame_errors
+from ttc.evaluation.metrics import run_metrics
+from ttc.settings import AXES
 
 #: Axes of a camera setting: everything but the lidar estimator and the fusion.
 CAMERA_AXES: tuple[str, ...] = tuple(a for a in AXES if a not in ("lidar_ttc", "fusion"))

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from ttc.evaluation.reference import MID_SCALE, two_frame_ttc
+from ttc.settings import CACHED_STAGES
 
 #: The estimates judged: camera (FP.4), lidar (FP.2) and their Kalman fusion (FP.7,
 #: ``ttc_fused`` / ``fused_ratio``, present in sweeps made since the ``fusion`` axis exists).
@@ -73,13 +74,9 @@ REFERENCE_COLUMNS: tuple[str, ...] = (
 )
 
 #: Cached stage → (time column, cache flag column, axes its cache key depends on besides the
-#: frame). The lidar stage (scan load + lane crop) costs the same for every setting.
+#: frame), from :data:`ttc.settings.CACHED_STAGES`.
 CACHED_STAGE_INPUTS: dict[str, tuple[str, str, tuple[str, ...]]] = {
-    "objects": ("ms_objects", "cached_objects", ("objects",)),
-    "lidar": ("ms_lidar", "cached_lidar", ()),
-    "keypoints": ("ms_keypoints", "cached_keypoints", ("detector",)),
-    "descriptors": ("ms_descriptors", "cached_descriptors", ("detector", "descriptor")),
-    "matches": ("ms_matching", "cached_matches", ("detector", "descriptor", "matcher")),
+    s.name: (s.time_column, s.cached_column, s.axes) for s in CACHED_STAGES
 }
 
 

@@ -14,7 +14,6 @@ import dataclasses
 import numpy as np
 import pandas as pd
 
-from ttc.evaluation import euclidean_clusters, run_metrics
 from ttc.evaluation.diagnosis import (
     CAMERA_AXES,
     centimetres,
@@ -24,6 +23,8 @@ from ttc.evaluation.diagnosis import (
     setting_key,
     with_reasons,
 )
+from ttc.evaluation.metrics import run_metrics
+from ttc.evaluation.reference import euclidean_clusters
 from ttc.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams
 from ttc.lidar_ttc import rear_distance as estimator_distance
 

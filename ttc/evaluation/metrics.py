@@ -35,7 +35,7 @@ from ttc.evaluation.errors import (
     stage_time_columns,
 )
 from ttc.evaluation.reference import REGIMES
-from ttc.pipeline import AXES
+from ttc.settings import AXES
 
 
 def judged_frames(

@@ -1,0 +1,105 @@
+"""The one FP.1–FP.4 runner (ttc.engine): a batch of settings sharing their stages reproduces the
+committed FP.6 / FP.5 series of frames 0–18 (results/kitti_0_18, made by the earlier
+one-setting pipeline), and a single run is the same rows as that setting inside a batch."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from experiments.config import settings_from_config
+from tests.conftest import PROJECT_ROOT
+from tests.test_beyond_rubric import composed
+from ttc.cache import StageCache
+from ttc.engine import MEMBER, pair_detail, run_setting, run_settings
+from ttc.settings import FrameRange
+
+COMMITTED = PROJECT_ROOT / "results" / "kitti_0_18"
+#: FP.6 settings of the committed report (detector/descriptor/matcher/selector), the other
+#: axes at the defaults of conf/config.yaml.
+FP6_SETTINGS = ("akaze/akaze/bf/knn", "sift/sift/flann/nn", "shitomasi/brisk/bf/nn",
+                "orb/orb/bf/knn", "harris/freak/flann/knn", "brisk/sift/bf/nn")  # fmt: skip
+LIDAR_ESTIMATORS = ("closest", "quantile", "median", "quantile_band_mean", "cluster")
+
+
+def _overrides(setting: str) -> list[str]:
+    det, desc, matcher, selector = setting.split("/")
+    return [f"detector={det}", f"descriptor={desc}", f"matcher={matcher}", f"selector={selector}"]
+
+
+def _lead(rows: pd.DataFrame, member: int) -> pd.DataFrame:
+    mine = rows[(rows[MEMBER] == member) & rows["is_lead"]]
+    return mine.set_index("frame").sort_index()
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> StageCache:
+    return StageCache(tmp_path_factory.mktemp("cache"))
+
+
+def test_batch_reproduces_the_committed_fp6_series(kitti_dir: Path, cache: StageCache) -> None:
+    committed = pd.read_csv(COMMITTED / "fp6_camera_ttc.csv")
+    settings = [settings_from_config(composed(_overrides(s))) for s in FP6_SETTINGS]
+    rows, failed = run_settings(settings, FrameRange(kitti_dir, 0, 18), cache)
+    assert not failed
+    for member, name in enumerate(FP6_SETTINGS):
+        want = committed[committed["setting"] == name].set_index("frame").sort_index()
+        got = _lead(rows, member).loc[want.index]
+        assert len(want) == 18, name
+        np.testing.assert_allclose(got["camera_ratio"], want["camera_ratio"], rtol=1e-5)
+        np.testing.assert_allclose(got["ttc_camera"], want["ttc_camera"], rtol=1e-4)
+        assert got["camera_reason"].tolist() == want["camera_reason"].tolist(), name
+        for column in ("keypoints_curr", "matches_total", "matches_in_box", "matches_kept"):
+            assert got[column].tolist() == want[column].tolist(), (name, column)
+
+
+def test_batch_reproduces_the_committed_fp5_series(kitti_dir: Path, cache: StageCache) -> None:
+    committed = pd.read_csv(COMMITTED / "fp5_lidar_ttc.csv")
+    settings = [settings_from_config(composed([f"lidar_ttc={e}"])) for e in LIDAR_ESTIMATORS]
+    rows, failed = run_settings(settings, FrameRange(kitti_dir, 0, 18), cache)
+    assert not failed
+    for member, name in enumerate(LIDAR_ESTIMATORS):
+        want = committed[committed["lidar_ttc"] == name].set_index("frame").sort_index()
+        got = _lead(rows, member).loc[want.index]
+        assert len(want) == 18, name
+        for column in ("ttc_lidar", "d_prev", "d_curr"):
+            np.testing.assert_allclose(got[column], want[column], rtol=1e-5, err_msg=name)
+        assert got["lidar_points_curr"].tolist() == want["lidar_points_curr"].tolist()
+
+
+def test_a_single_run_is_its_batch_members_rows(kitti_dir: Path, cache: StageCache) -> None:
+    """What a setting shares with others in a batch does not change its rows (times and
+    cache flags aside); an invalid member fails alone."""
+    overrides = [_overrides(s) for s in FP6_SETTINGS[:3]]
+    overrides += [["keypoint_filter=zscore"], ["fusion=kalman_ca"], ["camera_ttc=mean_ratio"]]
+    overrides += [["detector=sift", "descriptor=orb"]]  # invalid: fails inside OpenCV
+    settings = [settings_from_config(composed(o)) for o in overrides]
+    frames = FrameRange(kitti_dir, 0, 6)
+    rows, failed = run_settings(settings, frames, cache)
+    assert list(failed) == [len(settings) - 1]
+    untimed = [c for c in rows if c.startswith(("ms_", "cached_"))] + [MEMBER]
+    for member, s in enumerate(settings[:-1]):
+        alone = run_setting(s, frames, cache).drop(columns=untimed[:-1])
+        inside = rows[rows[MEMBER] == member].drop(columns=untimed).reset_index(drop=True)
+        pd.testing.assert_frame_equal(inside, alone)
+    with pytest.raises(type(failed[len(settings) - 1])):
+        run_setting(settings[-1], frames, cache)
+
+
+def test_pair_detail_rows_are_the_runs_rows(kitti_dir: Path, cache: StageCache) -> None:
+    s = settings_from_config(composed([]))
+    frames = FrameRange(kitti_dir, 0, 18)
+    detail = pair_detail(s, frames, 4, 5, cache)
+    run = run_setting(s, FrameRange(kitti_dir, 4, 5), cache)
+    untimed = [c for c in run if c.startswith(("ms_", "cached_"))]
+    pd.testing.assert_frame_equal(detail.rows.drop(columns=untimed), run.drop(columns=untimed))
+    lead = detail.rows[detail.rows["is_lead"]].iloc[0]
+    assert lead["curr_box"] == detail.lead_box >= 0
+    assert (
+        len(detail.kept) == lead["matches_kept"] and len(detail.removed) == lead["matches_removed"]
+    )
+    owner = detail.lane_owner[5]
+    assert (owner == detail.lead_box).sum() == lead["lidar_points_curr"]
