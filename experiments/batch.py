@@ -1,6 +1,6 @@
 """One batch of settings in one job (``batch=<id>``, planned by :mod:`experiments.plan`).
 
-The batch's settings run together through :func:`ttc.engine.run_settings` (expensive stages
+The batch's settings run together through :func:`ttc.engine.runner.run_settings` (expensive stages
 streamed once per upstream group, FP.1–FP.4 pieces computed once per pair for the settings
 that share them). What users rely on stays per setting: each setting keeps its run id and
 gets its own record with its resolved config; a complete setting is resumed, a setting
@@ -26,11 +26,12 @@ from experiments import progress, store
 from experiments.config import prepared_frame_range, settings_from_config
 from experiments.plan import read_plan
 from experiments.records import now, peak_rss_mb, record_head, row_statistics
-from ttc.cache import StageCache
-from ttc.descriptors import InvalidCombinationError
-from ttc.engine import MEMBER, run_settings
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_settings
+from ttc.engine.stages import input_files
+from ttc.features.descriptors import InvalidCombinationError
+from ttc.rows import MEMBER
 from ttc.settings import AXES, Settings
-from ttc.stages import input_files
 
 
 def run_batch(cfg: DictConfig, sweep_dir: Path) -> list[dict[str, Any]]:

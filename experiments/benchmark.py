@@ -56,17 +56,17 @@ import pandas as pd
 from experiments import store
 from experiments.paths import PROJECT_ROOT, default_data_root
 from experiments.provenance import code_version, machine, package_versions
-from ttc.descriptors import (
+from ttc.features.descriptors import (
     DESCRIPTORS,
     RUBRIC_DESCRIPTORS,
     describe_keypoints,
     is_binary,
     valid_pairs,
 )
-from ttc.frames import load_frame
-from ttc.keypoints import DETECTORS, RUBRIC_DETECTORS, detect_keypoints
-from ttc.matching import MatcherParams, knn_candidates
-from ttc.objects import ObjectDetectorParams, detect_objects, load_detector
+from ttc.features.keypoints import DETECTORS, RUBRIC_DETECTORS, detect_keypoints
+from ttc.features.matching import MatcherParams, knn_candidates
+from ttc.features.objects import ObjectDetectorParams, detect_objects, load_detector
+from ttc.io.frames import load_frame
 
 FULL = {"detectors": list(RUBRIC_DETECTORS), "descriptors": list(RUBRIC_DESCRIPTORS), "last": 18}
 REDUCED = {"detectors": ["fast", "orb"], "descriptors": ["brief", "orb"], "last": 5}

@@ -82,7 +82,7 @@ def sweep_references(
     (:func:`experiments.reference_store.recording_references`), or None (with the reason
     printed) when it cannot be built, e.g. the data root is gone."""
     from experiments.reference_store import recording_references  # noqa: PLC0415 (SciPy)
-    from ttc.cache import StageCache  # noqa: PLC0415
+    from ttc.engine.cache import StageCache  # noqa: PLC0415
 
     cache = StageCache(cache_dir) if cache_dir else None
     try:

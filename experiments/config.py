@@ -21,18 +21,18 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from experiments import datasets, paths
-from ttc.box_matching import BoxMatchingParams
-from ttc.camera_ttc import CameraTTCParams
-from ttc.descriptors import DESCRIPTORS, NO_DESCRIPTOR
-from ttc.frames import PROJECTIONS, recording_frames
-from ttc.fusion import FusionParams
-from ttc.keypoint_filter import KeypointFilterParams
-from ttc.keypoints import DETECTORS
-from ttc.lidar import LaneCropParams
-from ttc.lidar_ttc import LidarTTCParams
-from ttc.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
-from ttc.objects import ObjectDetectorParams
+from ttc.features.descriptors import DESCRIPTORS, NO_DESCRIPTOR
+from ttc.features.keypoints import DETECTORS
+from ttc.features.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
+from ttc.features.objects import ObjectDetectorParams
+from ttc.io.frames import PROJECTIONS, recording_frames
 from ttc.settings import AXES, FrameRange, Settings
+from ttc.steps.box_matching import BoxMatchingParams
+from ttc.steps.camera_ttc import CameraTTCParams
+from ttc.steps.fusion import FusionParams
+from ttc.steps.keypoint_filter import KeypointFilterParams
+from ttc.steps.lidar import LaneCropParams
+from ttc.steps.lidar_ttc import LidarTTCParams
 
 #: Config groups whose options each pick one parameter class by name.
 NAMED_GROUPS: dict[str, dict[str, type]] = {

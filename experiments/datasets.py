@@ -11,8 +11,8 @@ Two layouts, one ``dataset.sequence`` (a folder under ``dataset.root``) for both
       <root>/kitti_raw/<date>/<date>_drive_<drive>_sync/velodyne_points/{data/*.bin, timestamps.txt}
 
   ``sequence`` is the drive folder (:func:`raw_sequence`, the ``kitti_raw_sequence`` resolver);
-  :func:`ttc.frames.calibration_dir` finds the calibration one folder up, and
-  :func:`ttc.frames.read_frame_times` the real timestamps. ``last: null`` is the drive's
+  :func:`ttc.io.frames.calibration_dir` finds the calibration one folder up, and
+  :func:`ttc.io.frames.read_frame_times` the real timestamps. ``last: null`` is the drive's
   last frame (:func:`last_frame`).
 """
 
@@ -23,7 +23,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from ttc.frames import (
+from ttc.io.frames import (
     CAM_TO_CAM,
     VELO_TO_CAM,
     FrameDataError,
@@ -80,7 +80,7 @@ def resolved_last(last: int | None, sequence_dir: Path) -> int | None:
 
 
 def frame_range_last(last: int | None, sequence_dir: Path) -> int:
-    """:func:`resolved_last` for a frame range: raises :class:`ttc.frames.FrameDataError`
+    """:func:`resolved_last` for a frame range: raises :class:`ttc.io.frames.FrameDataError`
     naming the folder when ``last`` is null and the recording holds no frames."""
     resolved = resolved_last(last, sequence_dir)
     if resolved is None:
@@ -107,7 +107,7 @@ def dataset_identity(dataset: dict[str, Any], sequence_dir: Path) -> dict[str, A
 
 def layout_problems(date: str, sequence_dir: Path) -> list[str]:
     """What is wrong with a KITTI-raw drive (``date`` set) beyond its frames, in words: it
-    must ship its real timestamps, readable and agreeing (:func:`ttc.frames.read_frame_times`
+    must ship its real timestamps, readable and agreeing (:func:`ttc.io.frames.read_frame_times`
     names the file and line), and its date folder the calibration. Nothing for a
     Udacity-layout dataset (no ``date``), which runs at the nominal 10 Hz without them."""
     if not date:

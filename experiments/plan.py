@@ -32,8 +32,8 @@ from experiments import progress, store
 from experiments.config import run_identity, setting_config
 from experiments.finished import plan_line
 from experiments.records import now, peak_rss_mb, record_head
-from ttc.descriptors import check_pair
-from ttc.matching import TRACKERS
+from ttc.features.descriptors import check_pair
+from ttc.features.matching import TRACKERS
 
 PLAN_DIR = ".plan"
 #: Axes whose values share the cached stages: settings differing only in these form a batch.

@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -13,11 +14,12 @@ import pandas as pd
 
 from experiments.paths import default_cache_dir, default_data_root
 from ttc import evaluation as ev
-from ttc.cache import StageCache, Task, cache_key
+from ttc.engine.cache import StageCache, Task, cache_key
+from ttc.evaluation import lead_distance
 from ttc.evaluation import reference as reference_module
-from ttc.frames import LIDAR_DIR, file_identity, frame_files, read_frame_times
+from ttc.io.frames import LIDAR_DIR, file_identity, frame_files, read_frame_times, read_lidar_scan
 
-#: Bump to invalidate every cached reference (the key also holds ttc/evaluation/reference.py's source).
+#: Bump to invalidate every cached reference (the key also holds the source of ttc/evaluation/lead_distance.py and reference.py).
 REFERENCE_CACHE_VERSION = 1
 
 
@@ -34,23 +36,32 @@ def sequence_of(runs: pd.DataFrame) -> str:
 
 def _reference_key(sequence_dir: Path, last: int, times: np.ndarray | None) -> str:
     scans = [file_identity(frame_files(sequence_dir, i).scan) for i in range(last + 1)]
-    source = hashlib.sha256(inspect.getsource(reference_module).encode()).hexdigest()
+    code = "".join(inspect.getsource(m) for m in (lead_distance, reference_module))
+    source = hashlib.sha256(code.encode()).hexdigest()
     clock = None if times is None else hashlib.sha256(times.tobytes()).hexdigest()
     return cache_key("reference", REFERENCE_CACHE_VERSION, source, scans, clock)
+
+
+def recording_scans(sequence_dir: Path, last: int) -> Iterator[tuple[int, np.ndarray]]:
+    """``(frame, points)`` of frames 0..``last`` of a recording, one scan read at a time."""
+    for index in range(last + 1):
+        yield index, read_lidar_scan(frame_files(sequence_dir, index).scan).points
 
 
 def reference_task(sequence_dir: Path) -> Task:
     """The stage-cache task of the reference TTC over every frame of the recording
     (:func:`reference_for_sequence`), at the recording's real frame times when it ships a
-    ``timestamps.txt`` (:func:`ttc.frames.read_frame_times`); key: the scans' identities, the
-    frame times and ``ttc/evaluation/reference.py``'s source."""
+    ``timestamps.txt`` (:func:`ttc.io.frames.read_frame_times`); key: the scans' identities, the
+    frame times and the source of ``ttc/evaluation/lead_distance.py`` and ``reference.py``."""
     last = len(list((Path(sequence_dir) / LIDAR_DIR).glob("*.bin"))) - 1
     if last < 1:
         raise FileNotFoundError(f"no lidar scans under {Path(sequence_dir) / LIDAR_DIR}")
     times = read_frame_times(sequence_dir)
 
     def compute() -> dict[str, np.ndarray]:
-        ref = reference_module.reference_for_sequence(sequence_dir, 0, last, times=times)
+        ref = reference_module.reference_for_sequence(
+            recording_scans(sequence_dir, last), times=times
+        )
         # text columns (object, or pandas' str dtype) as fixed-width strings: cache entries
         # hold no pickled objects, and an object array would make every load discard it
         return {

@@ -55,11 +55,11 @@ from experiments.config import (
 from experiments.first_run import ensure_data
 from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
 from experiments.warm_up import warm_up  # noqa: F401 (the ttc launcher's workers call it)
-from ttc.cache import StageCache
-from ttc.descriptors import InvalidCombinationError
-from ttc.engine import run_setting
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_setting
+from ttc.engine.stages import input_files
+from ttc.features.descriptors import InvalidCombinationError
 from ttc.settings import AXES
-from ttc.stages import input_files
 
 register_configs()
 

@@ -1,19 +1,19 @@
-"""The ``scale_truth`` dataset on disk: the pairs of :mod:`ttc.scale_truth` written as a KITTI
+"""The ``scale_truth`` dataset on disk: the pairs of :mod:`ttc.io.scaled_pairs` written as a KITTI
 recording folder inside the stage cache, so the unchanged pipeline (and its real YOLO
 detector) runs on the synthetic images.
 
 The folder ``<cache>/scale_truth/<key>/`` holds ``image_02/data/NNNNNNNNNN.png``,
 ``velodyne_points/data/NNNNNNNNNN.bin`` (pair i = frames 2i → 2i+1), copies of both
-calibration files and ``truth.csv`` (:data:`ttc.frames.TRUTH_FILE`). ``key`` is the hash of the
+calibration files and ``truth.csv`` (:data:`ttc.io.frames.TRUTH_FILE`). ``key`` is the hash of the
 generator parameters (seed included), the identities of the source files
-(:func:`ttc.frames.file_identity`), the YOLO model files, and the source code of
-:mod:`ttc.scale_truth` and of this module: a change of any gives a new folder, nothing stale is
+(:func:`ttc.io.frames.file_identity`), the YOLO model files, and the source code of
+:mod:`ttc.io.scaled_pairs` and of this module: a change of any gives a new folder, nothing stale is
 reused. The folder is written under a temporary name and renamed into place (atomic), by one
 process at a time (a lock file beside it).
 
 The lead vehicle of a source frame (its rear centre for the warp and its lidar points) comes
 from the real frame through the pipeline's own cached stages and rule: YOLO boxes (default
-``objects``), the lane crop, :func:`ttc.lidar.lead_box_of`.
+``objects``), the lane crop, :func:`ttc.steps.lidar.lead_box_of`.
 """
 
 from __future__ import annotations
@@ -35,10 +35,13 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import paths
-from ttc import scale_truth as generator
-from ttc.cache import StageCache, cache_key
-from ttc.descriptors import DESCRIPTORS
-from ttc.frames import (
+from ttc.engine.cache import StageCache, cache_key
+from ttc.engine.stages import FrameStages
+from ttc.features.descriptors import DESCRIPTORS
+from ttc.features.keypoints import DETECTORS
+from ttc.features.objects import detect_objects, model_identity
+from ttc.io import scaled_pairs as generator
+from ttc.io.frames import (
     CAM_TO_CAM,
     IMAGE_DIR,
     LIDAR_DIR,
@@ -52,12 +55,9 @@ from ttc.frames import (
     load_calibration,
     read_image,
 )
-from ttc.keypoints import DETECTORS
-from ttc.lidar import assign_points_to_boxes, lane_mask, lead_box_of, project_to_image
-from ttc.objects import detect_objects, model_identity
-from ttc.scale_truth import ScaleTruthParams, SyntheticPair, make_pair
+from ttc.io.scaled_pairs import ScaleTruthParams, SyntheticPair, make_pair
 from ttc.settings import FrameRange, Settings
-from ttc.stages import FrameStages
+from ttc.steps.lidar import assign_points_to_boxes, lane_mask, lead_box_of, project_to_image
 
 #: Bump when the written folder's layout changes (the code hashes cover the rest).
 LAYOUT_VERSION = 1
@@ -125,10 +125,10 @@ def dataset_key(sequence_dir: Path, params: ScaleTruthParams) -> str:
 
 def consistent_points(pair: SyntheticPair, calib: Calibration, settings: Settings) -> np.ndarray:
     """(N + n,) bool over the rows of :meth:`SyntheticPair.scans`: the points the pipeline's
-    rules keep in both frames of the pair: inside the lane crop (:func:`ttc.lidar.lane_mask`)
+    rules keep in both frames of the pair: inside the lane crop (:func:`ttc.steps.lidar.lane_mask`)
     and assigned to the lead box (YOLO with ``settings.objects`` on each synthetic image,
-    :func:`ttc.lidar.assign_points_to_boxes` with ``settings.lidar_shrink``,
-    :func:`ttc.lidar.lead_box_of`). The scans keep only these, so both hold the same points
+    :func:`ttc.steps.lidar.assign_points_to_boxes` with ``settings.lidar_shrink``,
+    :func:`ttc.steps.lidar.lead_box_of`). The scans keep only these, so both hold the same points
     and the distance ratio of any order statistic is exactly the truth's."""
     scans = pair.scans()
     keep = np.ones(len(scans[0]), dtype=bool)

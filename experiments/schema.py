@@ -85,7 +85,7 @@ FRAME_COLUMNS: list[tuple[str, str, str, str]] = [
     ("ttc_fused", "float", "s", "FP.7 fused TTC d/v (NaN: none, inf: no collision course)"),
     ("ttc_fused_sd", "float", "s", "standard deviation of ttc_fused (delta method)"),
     ("fused_ratio", "float", "", "fused distance ratio d_prev / d_curr of the filter's state"),
-    ("fused_reason", "str", "", "reason code of ttc_fused (ttc.fusion.REASONS)"),
+    ("fused_reason", "str", "", "reason code of ttc_fused (ttc.steps.fusion.REASONS)"),
     ("ms_objects", "float", "ms", "YOLO (or cache load), current frame"),
     ("ms_lidar", "float", "ms", "scan load + crop (or cache load) + projection, current frame"),
     ("ms_keypoints", "float", "ms", "keypoint detection (or cache load), current frame"),

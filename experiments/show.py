@@ -42,13 +42,13 @@ from experiments.report.encode import save_png
 from experiments.run import check_data
 from ttc import draw
 from ttc import evaluation as ev
-from ttc.cache import StageCache
-from ttc.engine import pair_detail
-from ttc.frames import FrameDataError, frame_files, load_calibration, read_lidar_scan
-from ttc.lidar import project_to_image
-from ttc.objects import coco_names
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import pair_detail
+from ttc.features.objects import coco_names
+from ttc.io.frames import FrameDataError, frame_files, load_calibration, read_lidar_scan
 from ttc.rows import PairDetail
 from ttc.settings import AXES, FrameRange, Settings
+from ttc.steps.lidar import project_to_image
 
 register_configs()
 

@@ -35,7 +35,7 @@ from experiments import store
 from experiments.config import data_root
 from experiments.reference_store import recording_references, run_ids_by_recording
 from ttc import evaluation as ev
-from ttc.cache import StageCache
+from ttc.engine.cache import StageCache
 from ttc.settings import AXES
 
 #: Tag names of the child runs (``ttc.`` prefix: the project's own).

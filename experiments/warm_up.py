@@ -25,8 +25,8 @@ from experiments.config import (
     settings_from_config,
     swept_overrides,
 )
-from ttc.cache import StageCache
-from ttc.stages import shared_frame_tasks
+from ttc.engine.cache import StageCache
+from ttc.engine.stages import shared_frame_tasks
 
 log = logging.getLogger(__name__)
 #: Config groups whose values the shared stages depend on: swept, nothing is warmed up.

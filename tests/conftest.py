@@ -33,7 +33,7 @@ def kitti_dir(data_dir: Path) -> Path:
 
 def copy_frames(kitti_dir: Path, target: Path, indices: range | list[int]) -> Path:
     """Copy frames (image + scan) and both calibration files to ``target`` (to be damaged)."""
-    from ttc.frames import CAM_TO_CAM, VELO_TO_CAM, frame_files
+    from ttc.io.frames import CAM_TO_CAM, VELO_TO_CAM, frame_files
 
     for index in indices:
         files = frame_files(kitti_dir, index)

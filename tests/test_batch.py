@@ -242,7 +242,7 @@ def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir
     (:func:`experiments.collect.lead_rows`); its ranking is the ranking of every row."""
     from experiments.collect import lead_rows, ranked_runs
     from experiments.reference_store import recording_references
-    from ttc.cache import StageCache
+    from ttc.engine.cache import StageCache
 
     sweep = two_ways["tmp"] / "batched" / "grid"
     frames, runs = store.load_sweep(sweep)

@@ -24,15 +24,17 @@ from experiments.config import (
     settings_from_config,
 )
 from tests.conftest import PROJECT_ROOT
-from ttc import fusion, reasons
-from ttc.cache import StageCache
-from ttc.descriptors import DESCRIPTORS, NO_DESCRIPTOR
-from ttc.engine import MEMBER, run_setting, run_settings
-from ttc.fusion import FusionParams
-from ttc.keypoints import DETECTORS, FastParams
-from ttc.klt import KltParams
-from ttc.matching import NO_SELECTOR
+from ttc import reasons
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_setting, run_settings
+from ttc.features.descriptors import DESCRIPTORS, NO_DESCRIPTOR
+from ttc.features.keypoints import DETECTORS, FastParams
+from ttc.features.klt import KltParams
+from ttc.features.matching import NO_SELECTOR
+from ttc.rows import MEMBER
 from ttc.settings import FrameRange, Settings
+from ttc.steps import fusion
+from ttc.steps.fusion import FusionParams
 
 #: Run ids of settings stored in sweeps before sub-pixel keypoints, KLT and fusion existed
 #: (commit 50ad91a): they must not change.

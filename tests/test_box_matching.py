@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ttc.box_matching import (
+from ttc.steps.box_matching import (
     BOX_MATCHING_STRATEGIES,
     BoxCounts,
     BoxMatchingParams,

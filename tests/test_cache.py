@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ttc.cache import StageCache, Task, cache_key
+from ttc.engine.cache import StageCache, Task, cache_key
 
 
 def _task(key: str, calls: list[int], value: float = 1.0) -> Task:

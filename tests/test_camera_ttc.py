@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ttc import reasons
-from ttc.camera_ttc import (
+from ttc.steps.camera_ttc import (
     CAMERA_ESTIMATORS,
     CameraTTCParams,
     camera_ttc,

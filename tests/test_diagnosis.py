@@ -8,9 +8,9 @@ import pandas as pd
 import pytest
 
 from ttc import evaluation as ev
-from ttc.lidar_ttc import LidarTTCParams
-from ttc.matching import Matches
+from ttc.features.matching import Matches
 from ttc.rows import PairDetail
+from ttc.steps.lidar_ttc import LidarTTCParams
 
 # --------------------------------------------------------------------------- reason tables
 

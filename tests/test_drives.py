@@ -91,7 +91,7 @@ def test_the_sweep_summary_and_tracking_judge_each_run_on_its_own_drive(
     from experiments.collect import summarise_sweep
     from experiments.reference_store import recording_of, sequence_reference
     from experiments.tracking import _metrics_of
-    from ttc.cache import StageCache
+    from ttc.engine.cache import StageCache
 
     sweep_dir, root = two_drive_sweep
     cache_dir = sweep_dir.parent.parent / "cache"

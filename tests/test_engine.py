@@ -13,8 +13,9 @@ import pytest
 from experiments.config import settings_from_config
 from tests.conftest import PROJECT_ROOT
 from tests.test_beyond_rubric import composed
-from ttc.cache import StageCache
-from ttc.engine import MEMBER, pair_detail, run_setting, run_settings
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import pair_detail, run_setting, run_settings
+from ttc.rows import MEMBER
 from ttc.settings import FrameRange
 
 COMMITTED = PROJECT_ROOT / "results" / "kitti_0_18"

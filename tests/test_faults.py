@@ -20,18 +20,19 @@ import pytest
 
 from experiments import store
 from tests.conftest import PROJECT_ROOT
-from ttc import reasons, stages
-from ttc.cache import StageCache
-from ttc.descriptors import DESCRIPTORS
-from ttc.engine import run_setting
-from ttc.frames import (
+from ttc import reasons
+from ttc.engine import stages
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_setting
+from ttc.features.descriptors import DESCRIPTORS
+from ttc.features.keypoints import DETECTORS
+from ttc.io.frames import (
     CAM_TO_CAM,
     VELO_TO_CAM,
     FrameDataError,
     frame_files,
     load_calibration,
 )
-from ttc.keypoints import DETECTORS
 from ttc.settings import FrameRange, Settings
 
 SEQUENCE = Path("kitti") / "2011_09_26"
@@ -351,7 +352,7 @@ def test_8_cache_keys_chain_upstream_versions_and_libraries(kitti_dir, monkeypat
 
 
 def test_8_objects_key_holds_model_files_identity(kitti_dir, tmp_path) -> None:
-    from ttc.objects import ObjectDetectorParams, model_file
+    from ttc.features.objects import ObjectDetectorParams, model_file
 
     bundled = ObjectDetectorParams()
     copies = {}
@@ -384,7 +385,7 @@ def test_8_unwritable_cache_computes_without_caching(kitti_dir, tmp_path, monkey
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("ttc.cache.atomic_write", full)
+    monkeypatch.setattr("ttc.engine.cache.atomic_write", full)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         rows = run_setting(settings(), frames, StageCache(tmp_path / "full"))

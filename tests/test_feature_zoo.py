@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from ttc import detectors_extra
-from ttc.descriptors import (
+from ttc.features import detectors_extra
+from ttc.features.descriptors import (
     DESCRIPTORS,
     EXTRA_DESCRIPTOR_NAMES,
     INVALID_PAIRS,
@@ -31,15 +31,15 @@ from ttc.descriptors import (
     descriptor_is_binary,
     valid_pairs,
 )
-from ttc.frames import read_image
-from ttc.keypoints import (
+from ttc.features.keypoints import (
     DETECTORS,
     EXTRA_DETECTOR_NAMES,
     RUBRIC_DETECTORS,
     array_to_keypoints,
     detect_keypoints,
 )
-from ttc.matching import MatcherParams, SelectorParams, match_descriptors
+from ttc.features.matching import MatcherParams, SelectorParams, match_descriptors
+from ttc.io.frames import read_image
 
 ALL_DETECTORS = (*RUBRIC_DETECTORS, *EXTRA_DETECTOR_NAMES)
 ALL_DESCRIPTORS = (*RUBRIC_DESCRIPTORS, *EXTRA_DESCRIPTOR_NAMES)
@@ -50,7 +50,7 @@ NEW_PAIRS = [
     for desc in ALL_DESCRIPTORS
     if det in EXTRA_DETECTOR_NAMES or desc in EXTRA_DESCRIPTOR_NAMES
 ]
-#: LUCID wants colour; on grey frames its matches are mostly wrong (see ttc.descriptors).
+#: LUCID wants colour; on grey frames its matches are mostly wrong (see ttc.features.descriptors).
 WEAK_DESCRIPTORS = {"lucid"}
 BAND = (400.0, 840.0)  # px: the central band whose keypoints are described
 
@@ -117,7 +117,7 @@ def test_new_pair_matches_frames_0_1_or_raises_the_typed_error(
 @pytest.mark.parametrize(("detector", "descriptor"), [("fast", "kaze"), ("msd", "sift")])
 def test_the_invalid_reasons_still_hold_in_this_opencv(grays, keypoints, detector, descriptor):
     """The table's reasons are OpenCV's behaviour: revisit the table if this fails."""
-    from ttc.descriptors import make_extractor
+    from ttc.features.descriptors import make_extractor
 
     extractor = make_extractor(DESCRIPTORS[descriptor](), detector)
     with pytest.raises(cv2.error):

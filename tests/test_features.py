@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ttc.descriptors import (
+from ttc.features.descriptors import (
     DESCRIPTORS,
     INVALID_PAIRS,
     RUBRIC_DESCRIPTORS,
@@ -27,8 +27,7 @@ from ttc.descriptors import (
     is_binary,
     valid_pairs,
 )
-from ttc.frames import read_image
-from ttc.keypoints import (
+from ttc.features.keypoints import (
     CLASS_ID,
     DETECTORS,
     KEYPOINT_COLUMNS,
@@ -46,7 +45,7 @@ from ttc.keypoints import (
     nms_local_maxima,
     opencv_factory,
 )
-from ttc.matching import (
+from ttc.features.matching import (
     MATCHERS,
     SELECTORS,
     MatcherParams,
@@ -56,6 +55,7 @@ from ttc.matching import (
     match_descriptors,
     select_matches,
 )
+from ttc.io.frames import read_image
 
 FRAMES = (0, 1)
 COMBINATIONS = [
@@ -336,7 +336,7 @@ def test_flann_is_deterministic(described, tmp_path: Path, detector: str, descri
     np.save(tmp_path / "d1.npy", d1)
     script = (
         "import sys, numpy as np\n"
-        "from ttc.matching import MatcherParams, knn_candidates\n"
+        "from ttc.features.matching import MatcherParams, knn_candidates\n"
         "d0, d1 = (np.load(f'{sys.argv[1]}/{n}.npy') for n in ('d0', 'd1'))\n"
         f"idx, _ = knn_candidates(d0, d1, {is_binary(descriptor)}, MatcherParams(name='flann'))\n"
         "np.save(f'{sys.argv[1]}/idx.npy', idx)\n"
@@ -370,7 +370,7 @@ def test_empty_and_tiny_inputs(matcher: str, binary: bool) -> None:
 def test_a_shared_extractor_describes_as_a_new_one(grays, descriptor: str) -> None:
     """One extractor object per (params, detector) and process describes every frame as a
     freshly made one (no state carried over from the previous image)."""
-    from ttc.descriptors import make_extractor, shared_extractor
+    from ttc.features.descriptors import make_extractor, shared_extractor
 
     detector = descriptor if descriptor in ("akaze", "sift") else "orb"
     params = DESCRIPTORS[descriptor]()

@@ -52,7 +52,7 @@ def test_key_changes_when_a_config_or_code_file_changes(tmp_path, monkeypatch) -
     config.write_text(config.read_text() + "\n")
     assert finished.command_key(SWEEP) != key
     key = finished.command_key(SWEEP)
-    code = tmp_path / "ttc" / "lidar_ttc.py"
+    code = tmp_path / "ttc" / "steps" / "lidar_ttc.py"
     stat = code.stat()
     os.utime(code, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000))
     assert finished.command_key(SWEEP) != key

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import copy_frames
-from ttc.frames import (
+from ttc.io.frames import (
     FrameDataError,
     frame_files,
     frame_indices,

@@ -12,9 +12,9 @@ import pytest
 from experiments.report.cli import build_report
 from tests.browser_cdp import Browser, chromium_path
 from tests.test_sweep import hydra_run
-from ttc import fusion
 from ttc.evaluation import OUTLIER_REL
 from ttc.evaluation import fused_diagnosis as fd
+from ttc.steps import fusion
 
 INF = np.inf
 

@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ttc import fusion
-from ttc.fusion import FusionParams, fuse_rows, kalman_fuse, noise_sds
+from ttc.steps import fusion
+from ttc.steps.fusion import FusionParams, fuse_rows, kalman_fuse, noise_sds
 
 N, DT = 60, 0.1  # frame pairs, s
 D0, V0, ACCEL = 8.0, 1.0, -0.1  # m, closing m/s, closing m/s² (the lead car brakes less)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ttc.keypoint_filter import (
+from ttc.steps.keypoint_filter import (
     KEYPOINT_FILTERS,
     KeypointFilterParams,
     filter_box_matches,

@@ -10,10 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from ttc.frames import read_image
-from ttc.keypoints import FastParams, ShiTomasiParams, detect_keypoints
-from ttc.klt import KltParams, Tracks, forward_backward_error, track_keypoints
-from ttc.matching import (
+from ttc.features.keypoints import FastParams, ShiTomasiParams, detect_keypoints
+from ttc.features.klt import KltParams, Tracks, forward_backward_error, track_keypoints
+from ttc.features.matching import (
     MATCHER_PARAMS,
     NO_SELECTOR,
     SelectorParams,
@@ -24,6 +23,7 @@ from ttc.matching import (
     tracks_to_matches,
     uses_descriptors,
 )
+from ttc.io.frames import read_image
 
 HEIGHT, WIDTH = 240, 320  # px
 SCALE, SHIFT = 1.007, (2.3, -1.7)  # the lead car's ~0.7 % per frame, a sub-pixel shift (px)

@@ -13,10 +13,10 @@ from experiments.config import frame_range_from_config, settings_from_config
 from experiments.reference_store import sequence_reference
 from tests.test_kitti_raw import composed, make_drive
 from ttc import evaluation as ev
-from ttc.cache import StageCache
-from ttc.engine import run_setting
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_setting
 from ttc.evaluation.reference import reference_ttc
-from ttc.frames import frame_files
+from ttc.io.frames import frame_files
 
 #: The made-up drive: the shared frames 0–23; scans 10 and 11 without the lead car.
 EMPTY = (10, 11)

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ttc.frames import load_calibration, load_frame
-from ttc.lidar import (
+from ttc.io.frames import load_calibration, load_frame
+from ttc.steps.lidar import (
     LaneCropParams,
     assign_points_to_boxes,
     associate_lidar,
@@ -92,7 +92,7 @@ def test_assignment_shrinks_boxes_and_drops_ambiguous_points() -> None:
 
 def test_lead_car_closest_point_frame_0(kitti_dir: Path) -> None:
     """The lane points in the lead car's box on frame 0 start at x ≈ 7.97 m."""
-    from ttc.objects import ObjectDetectorParams, detect_objects
+    from ttc.features.objects import ObjectDetectorParams, detect_objects
 
     frame = load_frame(kitti_dir, 0)
     calib = load_calibration(kitti_dir)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ttc import reasons
-from ttc.lidar_ttc import (
+from ttc.steps.lidar_ttc import (
     LIDAR_ESTIMATORS,
     LidarTTCParams,
     lidar_ttc,

@@ -15,8 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ttc.frames import frame_files, load_calibration, read_image
-from ttc.objects import (
+from ttc.features.objects import (
     ROAD_VEHICLES,
     Detections,
     ModelFileError,
@@ -28,6 +27,7 @@ from ttc.objects import (
     load_detector,
     vehicle_class_ids,
 )
+from ttc.io.frames import frame_files, load_calibration, read_image
 
 N_FRAMES = 78
 CAMERA_HEIGHT_M = 1.65  # KITTI camera above the road
@@ -245,7 +245,7 @@ def test_empty_detections() -> None:
 
 def test_nested_duplicate_box_is_dropped() -> None:
     """A box mostly inside a larger box of the same class is a part detection (frame 0's rear window)."""
-    from ttc.objects import contained_boxes
+    from ttc.features.objects import contained_boxes
 
     roi = np.array(
         [[500, 180, 200, 140], [588, 207, 73, 83], [650, 200, 100, 100], [560, 190, 60, 60]]
@@ -256,8 +256,8 @@ def test_nested_duplicate_box_is_dropped() -> None:
 
 
 def test_frame_0_has_no_nested_car_box(kitti_dir) -> None:
-    from ttc.frames import load_frame
-    from ttc.objects import ObjectDetectorParams, contained_boxes, detect_objects
+    from ttc.features.objects import ObjectDetectorParams, contained_boxes, detect_objects
+    from ttc.io.frames import load_frame
 
     image = load_frame(kitti_dir, 0).image
     kept = detect_objects(image, ObjectDetectorParams())

@@ -11,13 +11,13 @@ import pytest
 from experiments.schema import FRAME_COLUMNS, schema_problems
 from tests.conftest import copy_frames
 from ttc import reasons
-from ttc.cache import StageCache
-from ttc.descriptors import DESCRIPTORS, InvalidCombinationError
-from ttc.engine import run_setting
-from ttc.frames import frame_files
-from ttc.keypoints import DETECTORS
-from ttc.lidar_ttc import LidarTTCParams
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_setting
+from ttc.features.descriptors import DESCRIPTORS, InvalidCombinationError
+from ttc.features.keypoints import DETECTORS
+from ttc.io.frames import frame_files
 from ttc.settings import AXES, FrameRange, Settings
+from ttc.steps.lidar_ttc import LidarTTCParams
 
 RUN_COLUMNS = {"run_id", "sweep_id", "git_commit", *AXES}
 
@@ -114,7 +114,7 @@ def test_broken_frame_is_a_row_not_a_crash(kitti_dir: Path, tmp_path: Path) -> N
 def test_real_frame_times_set_dt(kitti_dir: Path, tmp_path: Path, cache_dir: Path, step_ns) -> None:
     """With a timestamps file 0.1 s apart the TTCs are today's; 0.2 s apart doubles them."""
     from tests.test_frames import kitti_times
-    from ttc.frames import CAM_TO_CAM, VELO_TO_CAM
+    from ttc.io.frames import CAM_TO_CAM, VELO_TO_CAM
 
     for index in range(4):
         for src in (frame_files(kitti_dir, index).image, frame_files(kitti_dir, index).scan):
@@ -138,15 +138,15 @@ def test_real_frame_times_set_dt(kitti_dir: Path, tmp_path: Path, cache_dir: Pat
 
 
 def test_a_frames_grey_image_is_decoded_once_per_file_content(kitti_dir, tmp_path) -> None:
-    """:func:`ttc.stages.gray_image`: decoded once per process and file content; the file
+    """:func:`ttc.engine.stages.gray_image`: decoded once per process and file content; the file
     changed (new bytes, new mtime) is decoded again; the shared image is read-only."""
     import os
     import shutil
 
     import cv2
 
-    from ttc.frames import read_image
-    from ttc.stages import gray_image
+    from ttc.engine.stages import gray_image
+    from ttc.io.frames import read_image
 
     path = tmp_path / "frame.png"
     shutil.copy(kitti_dir / "image_02" / "data" / "0000000000.png", path)

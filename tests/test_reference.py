@@ -6,14 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from experiments.reference_store import recording_scans
 from ttc.evaluation.errors import mid_error
-from ttc.evaluation.reference import (
-    REFERENCE_CAVEATS,
-    lead_points,
-    rear_distance,
-    reference_for_sequence,
-    reference_ttc,
-)
+from ttc.evaluation.lead_distance import lead_points, rear_distance
+from ttc.evaluation.reference import REFERENCE_CAVEATS, reference_for_sequence, reference_ttc
 
 DT = 0.1
 
@@ -200,7 +196,7 @@ def test_caveats_mention_the_shared_bias():
 
 @pytest.fixture(scope="module")
 def kitti_reference(kitti_dir) -> pd.DataFrame:
-    return reference_for_sequence(kitti_dir).set_index("frame")
+    return reference_for_sequence(recording_scans(kitti_dir, 77)).set_index("frame")
 
 
 def test_real_reference_is_plausible_on_the_rubric_frames(kitti_reference):
@@ -248,7 +244,7 @@ def test_stored_reference_is_read_back_not_recomputed(kitti_dir, kitti_reference
     """The reference kept in the stage cache loads in a fresh cache (no in-memory copy) as
     it was computed: text columns stored as strings, so the entry is not discarded."""
     from experiments.reference_store import sequence_reference  # noqa: PLC0415
-    from ttc.cache import StageCache  # noqa: PLC0415
+    from ttc.engine.cache import StageCache  # noqa: PLC0415
 
     first = sequence_reference(kitti_dir, StageCache(tmp_path, memory_mb=0))
     fresh = StageCache(tmp_path, memory_mb=0)

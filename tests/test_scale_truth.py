@@ -18,10 +18,11 @@ from experiments.scale_truth import materialise
 from experiments.schema import FRAME_COLUMNS
 from tests.conftest import PROJECT_ROOT
 from ttc import evaluation as ev
-from ttc.cache import StageCache
-from ttc.descriptors import DESCRIPTORS
-from ttc.engine import MEMBER, run_settings
-from ttc.frames import (
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_settings
+from ttc.features.descriptors import DESCRIPTORS
+from ttc.features.keypoints import DETECTORS
+from ttc.io.frames import (
     TRUTH_COLUMNS,
     TRUTH_FILE,
     frame_files,
@@ -29,10 +30,10 @@ from ttc.frames import (
     read_image,
     read_truth,
 )
-from ttc.keypoints import DETECTORS
-from ttc.lidar_ttc import LidarTTCParams
-from ttc.scale_truth import ScaleTruthParams, make_pair, scale_image, scale_matrix
+from ttc.io.scaled_pairs import ScaleTruthParams, make_pair, scale_image, scale_matrix
+from ttc.rows import MEMBER
 from ttc.settings import FrameRange, Settings
+from ttc.steps.lidar_ttc import LidarTTCParams
 
 SOURCE = 20
 CENTRE = (620.0, 190.0)
@@ -278,7 +279,7 @@ def test_a_kitti_raw_drive_can_be_a_source(kitti_dir: Path, tmp_path: Path) -> N
     """A source in the official KITTI-raw layout (calibration in the date folder, beside the
     drive) is generated from too: its calibration is found, keyed and copied with the pairs."""
     from tests.test_kitti_raw import make_drive
-    from ttc.frames import CAM_TO_CAM, VELO_TO_CAM, load_calibration
+    from ttc.io.frames import CAM_TO_CAM, VELO_TO_CAM, load_calibration
 
     drive = make_drive(kitti_dir, tmp_path, "0052", [0, 1, 2])
     assert not (drive / CAM_TO_CAM).exists()  # only in the date folder

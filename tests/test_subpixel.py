@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 
 from ttc import reasons
-from ttc.camera_ttc import CameraTTCParams, camera_ttc
-from ttc.frames import read_image
-from ttc.keypoints import (
+from ttc.features.keypoints import (
     DETECTORS,
     SUBPIXEL_HALF_WINDOW,
     FastParams,
@@ -22,6 +20,8 @@ from ttc.keypoints import (
     detect_keypoints,
     refine_subpixel,
 )
+from ttc.io.frames import read_image
+from ttc.steps.camera_ttc import CameraTTCParams, camera_ttc
 
 SUPERSAMPLE = 16  # render at 16× and area-average: edges land at sub-pixel positions
 HEIGHT, WIDTH = 200, 300  # px

@@ -16,10 +16,10 @@ import pytest
 
 from experiments import store
 from tests.conftest import PROJECT_ROOT
-from ttc.descriptors import DESCRIPTORS, describe_keypoints, descriptor_is_binary
-from ttc.frames import read_image
-from ttc.keypoints import DETECTORS, detect_keypoints
-from ttc.matching import MATCHER_PARAMS, SelectorParams, knn_candidates, select_matches
+from ttc.features.descriptors import DESCRIPTORS, describe_keypoints, descriptor_is_binary
+from ttc.features.keypoints import DETECTORS, detect_keypoints
+from ttc.features.matching import MATCHER_PARAMS, SelectorParams, knn_candidates, select_matches
+from ttc.io.frames import read_image
 from ttc.plugins import (
     CustomDescriptorParams,
     CustomDetectorParams,

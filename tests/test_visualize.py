@@ -17,13 +17,13 @@ from experiments.report.encode import save_png
 from experiments.show import FRAME_PICTURES, PAIR_PICTURES, with_default_overrides
 from ttc import draw
 from ttc import evaluation as ev
-from ttc.cache import StageCache
-from ttc.descriptors import DESCRIPTORS
-from ttc.engine import pair_detail
-from ttc.keypoints import DETECTORS
-from ttc.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import pair_detail
+from ttc.features.descriptors import DESCRIPTORS
+from ttc.features.keypoints import DETECTORS
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
+from ttc.steps.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 RED, GREEN = (0, 0, 255), (0, 255, 0)

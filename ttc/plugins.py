@@ -18,10 +18,10 @@ matcher        ``fn(desc_prev, desc_curr, binary, **params)``    (idx int (Q, 2)
                                                                  descriptors of every previous
                                                                  one, best first, −1 / +inf where
                                                                  missing (as
-                                                                 :func:`ttc.matching.knn_candidates`)
+                                                                 :func:`ttc.features.matching.knn_candidates`)
 =============  ================================================  ===================================
 
-``gray`` is the uint8 H × W frame, ``keypoints`` a (N, 7) array (:mod:`ttc.feature_base`). The
+``gray`` is the uint8 H × W frame, ``keypoints`` a (N, 7) array (:mod:`ttc.features.base`). The
 stage cache keys a custom stage by ``target``, ``params`` and the function's compiled code, so
 editing the function recomputes it. The defaults point at the small examples below.
 """
@@ -38,7 +38,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ttc.feature_base import (
+from ttc.features.base import (
     KEYPOINT_COLUMNS,
     check_gray,
     empty_keypoints,

@@ -5,7 +5,7 @@ counts, keypoint and match counts, stage times in ms, cache flags), then the box
 (:func:`box_head`: box pair, lead flag, class, confidence, box in px), then FP.2
 (:func:`lidar_columns`, distances in m, TTC in s) and FP.3/FP.4 (:func:`camera_columns`),
 then ``box_shared_matches`` and ``error``. A pair that could not be read is one
-:func:`error_row`. The fused columns are added over a whole run by :func:`ttc.fusion.fuse_rows`.
+:func:`error_row`. The fused columns are added over a whole run by :func:`ttc.steps.fusion.fuse_rows`.
 
 :class:`PairDetail` holds the intermediate arrays of one frame pair (for pictures and the
 report's explanations).
@@ -22,6 +22,9 @@ import pandas as pd
 from ttc import reasons
 from ttc.settings import CACHED_STAGE_NAMES
 
+#: Column of a batch's rows (:func:`ttc.engine.runner.run_settings`): the index of the row's
+#: setting in the list the batch was given.
+MEMBER = "member"
 #: FP.2–FP.4 columns of a box pair that could not be evaluated (types as in a full row).
 EMPTY_BOX_RESULT: dict[str, Any] = {
     "ttc_lidar": np.nan, "lidar_reason": "", "d_prev": np.nan, "d_curr": np.nan,
@@ -126,7 +129,7 @@ def box_head(
 def lidar_columns(
     lid: Any, pts_prev: np.ndarray, pts_curr: np.ndarray, ms: float
 ) -> dict[str, Any]:
-    """FP.2 columns: the estimator's result ``lid`` (:class:`ttc.lidar_ttc.LidarTTCResult`) on the
+    """FP.2 columns: the estimator's result ``lid`` (:class:`ttc.steps.lidar_ttc.LidarTTCResult`) on the
     box points ``pts_prev`` / ``pts_curr`` (N × 3, m, Velodyne frame), computed in ``ms``."""
     return dict(
         ttc_lidar=lid.ttc, lidar_reason=lid.reason, d_prev=lid.d_prev, d_curr=lid.d_curr,
@@ -142,8 +145,8 @@ def lidar_columns(
 
 def camera_columns(cam: Any, filt: Any, ms_filter: float, ms_camera: float) -> dict[str, Any]:
     """FP.3/FP.4 columns: the box's filtered matches ``filt``
-    (:class:`ttc.keypoint_filter.FilterResult`) and the camera estimate ``cam``
-    (:class:`ttc.camera_ttc.CameraTTCResult`), with their times in ms."""
+    (:class:`ttc.steps.keypoint_filter.FilterResult`) and the camera estimate ``cam``
+    (:class:`ttc.steps.camera_ttc.CameraTTCResult`), with their times in ms."""
     return dict(
         ttc_camera=cam.ttc, camera_reason=cam.reason, camera_ratio=cam.ratio,
         camera_pairs=cam.n_pairs, matches_in_box=filt.n_in_box, matches_kept=filt.n_kept,

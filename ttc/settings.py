@@ -27,17 +27,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ttc.box_matching import BoxMatchingParams
-from ttc.camera_ttc import CameraTTCParams
-from ttc.descriptors import DESCRIPTORS
-from ttc.frames import frame_indices, frame_interval, frame_pairs
-from ttc.fusion import FusionParams
-from ttc.keypoint_filter import KeypointFilterParams
-from ttc.keypoints import DETECTORS
-from ttc.lidar import LaneCropParams
-from ttc.lidar_ttc import LidarTTCParams
-from ttc.matching import MATCHER_PARAMS, MatcherParams, SelectorParams
-from ttc.objects import ObjectDetectorParams
+from ttc.features.descriptors import DESCRIPTORS
+from ttc.features.keypoints import DETECTORS
+from ttc.features.matching import MATCHER_PARAMS, MatcherParams, SelectorParams
+from ttc.features.objects import ObjectDetectorParams
+from ttc.io.frames import frame_indices, frame_interval, frame_pairs
+from ttc.steps.box_matching import BoxMatchingParams
+from ttc.steps.camera_ttc import CameraTTCParams
+from ttc.steps.fusion import FusionParams
+from ttc.steps.keypoint_filter import KeypointFilterParams
+from ttc.steps.lidar import LaneCropParams
+from ttc.steps.lidar_ttc import LidarTTCParams
 
 ROLES = ("frame_stage", "pair_stage", "step", "fusion", "dataset")
 
@@ -184,7 +184,7 @@ class FrameRange:
     step: int = 1
     projection: str = "P_rect_02"
     min_scan_points: int = 100_000
-    pairing: str = "consecutive"  # or "disjoint": pairs 0→1, 2→3, … (ttc.frames.frame_pairs)
+    pairing: str = "consecutive"  # or "disjoint": pairs 0→1, 2→3, … (ttc.io.frames.frame_pairs)
 
     @property
     def pairs(self) -> list[tuple[int, int]]:

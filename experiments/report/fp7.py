@@ -14,8 +14,8 @@ from experiments.report.header import provenance_markdown
 from experiments.report.load import SweepData
 from experiments.report.plots import plot_fused_series, save_figure
 from ttc import evaluation as ev
-from ttc import fusion
 from ttc.evaluation import fused_diagnosis as fd
+from ttc.steps import fusion
 
 #: Columns of ``fp7_fusion_ttc.csv`` (one row per fused setting × frame).
 FP7_COLUMNS = [
@@ -49,7 +49,7 @@ def _intro() -> str:
     """What is judged and what flags a frame."""
     reasons = "; ".join(f"`{k}`: {v}" for k, v in fusion.REASONS.items())
     return (
-        "The fused TTC of every run with a Kalman fusion (`ttc/fusion.py`: the lead vehicle's "
+        "The fused TTC of every run with a Kalman fusion (`ttc/steps/fusion.py`: the lead vehicle's "
         "distance and closing speed, fed by the run's own lidar distance and camera scale "
         "ratio) against the reference ([reference.md](reference.md)), beside the two "
         "estimates it fuses. A frame is **flagged** like a sensor's: an invalid fused TTC, one "

@@ -23,8 +23,8 @@ from experiments.config import (
 from experiments.paths import PROJECT_ROOT, default_cache_dir, default_data_root
 from experiments.reference_store import recording_references, sequence_of
 from ttc import evaluation as ev
-from ttc.cache import StageCache
-from ttc.engine import pair_detail
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import pair_detail
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
 
@@ -111,7 +111,7 @@ class Context:
     calls: int = 0
 
     def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
-        """:func:`~ttc.engine.pair_detail` of a run's frame pair (memoised)."""
+        """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised)."""
         key = (run_id, prev, curr)
         if key not in self.details:
             settings, frames = setting_of_run(runs, run_id, self.root)

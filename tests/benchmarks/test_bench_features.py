@@ -13,10 +13,15 @@ import cv2
 import numpy as np
 import pytest
 
-from ttc.descriptors import DESCRIPTORS, describe_keypoints, is_binary
-from ttc.frames import read_image
-from ttc.keypoints import DETECTORS, array_to_keypoints, detect_keypoints, keypoints_to_array
-from ttc.matching import MatcherParams, SelectorParams, knn_candidates, select_matches
+from ttc.features.descriptors import DESCRIPTORS, describe_keypoints, is_binary
+from ttc.features.keypoints import (
+    DETECTORS,
+    array_to_keypoints,
+    detect_keypoints,
+    keypoints_to_array,
+)
+from ttc.features.matching import MatcherParams, SelectorParams, knn_candidates, select_matches
+from ttc.io.frames import read_image
 
 #: Descriptor → the detector whose keypoints it is timed on.
 NATURAL_DETECTOR = {

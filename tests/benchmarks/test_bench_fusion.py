@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from ttc import reasons
-from ttc.box_matching import BoxMatchingParams, count_shared_matches, match_boxes
-from ttc.camera_ttc import CameraTTCParams, camera_ttc
-from ttc.keypoint_filter import KeypointFilterParams, filter_box_matches
-from ttc.lidar_ttc import LidarTTCParams, lidar_ttc
+from ttc.steps.box_matching import BoxMatchingParams, count_shared_matches, match_boxes
+from ttc.steps.camera_ttc import CameraTTCParams, camera_ttc
+from ttc.steps.keypoint_filter import KeypointFilterParams, filter_box_matches
+from ttc.steps.lidar_ttc import LidarTTCParams, lidar_ttc
 
 BUDGET_S = 5e-3
 DT = 0.1  # s

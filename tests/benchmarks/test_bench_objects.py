@@ -8,8 +8,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ttc.frames import frame_files, read_image
-from ttc.objects import ObjectDetectorParams, clear_detector_cache, detect_objects, load_detector
+from ttc.features.objects import (
+    ObjectDetectorParams,
+    clear_detector_cache,
+    detect_objects,
+    load_detector,
+)
+from ttc.io.frames import frame_files, read_image
 
 
 def test_bench_detect_objects_frame_0(benchmark, kitti_dir: Path) -> None:

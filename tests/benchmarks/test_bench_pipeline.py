@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from ttc.cache import StageCache
-from ttc.descriptors import DESCRIPTORS
-from ttc.engine import run_setting
-from ttc.frames import load_calibration, load_frame
-from ttc.keypoints import DETECTORS
-from ttc.lidar import LaneCropParams, associate_lidar
-from ttc.objects import ObjectDetectorParams, detect_objects
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_setting
+from ttc.features.descriptors import DESCRIPTORS
+from ttc.features.keypoints import DETECTORS
+from ttc.features.objects import ObjectDetectorParams, detect_objects
+from ttc.io.frames import load_calibration, load_frame
 from ttc.settings import FrameRange, Settings
+from ttc.steps.lidar import LaneCropParams, associate_lidar
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ import numpy as np
 
 from ttc.draw.raster import FONT, HIGHLIGHT_COLOUR, put_text
 from ttc.evaluation.lead import lead_boxes
-from ttc.keypoints import X, Y
+from ttc.features.keypoints import X, Y
 from ttc.rows import PairDetail
 
 #: Colours (BGR) of the picture's matches: kept green dots, removed magenta crosses (told

@@ -24,7 +24,7 @@ from ttc.draw.raster import (
     stack,
 )
 from ttc.evaluation.lead import lead_boxes, lead_row
-from ttc.keypoints import X, Y
+from ttc.features.keypoints import X, Y
 from ttc.rows import PairDetail
 
 

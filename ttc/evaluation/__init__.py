@@ -94,6 +94,12 @@ from ttc.evaluation.errors import (
     with_compute_times,
 )
 from ttc.evaluation.lead import box_points, lead_box_of, lead_boxes, lead_clouds, lead_row
+from ttc.evaluation.lead_distance import (
+    euclidean_clusters,
+    lead_distance_series,
+    lead_points,
+    rear_distance,
+)
 from ttc.evaluation.lead_status import (
     LEAD_CHANGE,
     LEAD_STATUSES,
@@ -136,11 +142,7 @@ from ttc.evaluation.reference import (
     REFERENCE_CAVEATS,
     REFERENCE_SUMMARY,
     REGIMES,
-    euclidean_clusters,
     find_stop,
-    lead_distance_series,
-    lead_points,
-    rear_distance,
     reference_for_sequence,
     reference_ttc,
 )

@@ -16,7 +16,6 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from ttc import reasons
-from ttc.camera_ttc import distance_ratios
 from ttc.evaluation.bootstrap import N_BOOT, bootstrap_rank_intervals
 from ttc.evaluation.diagnosis import (
     CAMERA_AXES,
@@ -28,8 +27,9 @@ from ttc.evaluation.diagnosis import (
 )
 from ttc.evaluation.metrics import run_metrics
 from ttc.evaluation.ranking import rank_runs
-from ttc.keypoints import X, Y
+from ttc.features.keypoints import X, Y
 from ttc.rows import PairDetail
+from ttc.steps.camera_ttc import distance_ratios
 
 #: Camera TTC "way off": relative error above this (or invalid where the reference is finite).
 WAY_OFF_REL = 0.5

@@ -3,7 +3,7 @@ TTCs are implausible and why.
 
 The runs judged are the ok runs with a Kalman fusion (``fusion`` other than ``none``): each
 carries, per frame, its own lidar TTC (FP.2), camera TTC (FP.4) and the fused TTC
-(:mod:`ttc.fusion`, ``ttc_fused`` with the filter's ``fused_reason``). A fused frame is
+(:mod:`ttc.steps.fusion`, ``ttc_fused`` with the filter's ``fused_reason``). A fused frame is
 **flagged** when it is an outlier (invalid, or more than ``OUTLIER_REL`` off a judgeable
 reference) or a false alarm, like the sensors' frames. Its reasons are rules on the same row
 (:func:`fused_rules`), each naming what the filter was given:
@@ -26,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ttc import fusion
 from ttc.evaluation.diagnosis import (
     CAMERA_AXES,
     fmt,
@@ -37,6 +36,7 @@ from ttc.evaluation.diagnosis import (
 from ttc.evaluation.errors import OUTLIER_REL
 from ttc.evaluation.metrics import run_metrics
 from ttc.evaluation.ranking import rank_runs
+from ttc.steps import fusion
 
 #: Frames after the filter's first estimate during which a flagged frame is blamed on its start.
 START_FRAMES = 3

@@ -1,5 +1,5 @@
 """The lead vehicle of a frame pair: which box it is and its row, points and FP.1 partner in
-the intermediate arrays of :func:`ttc.engine.pair_detail`.
+the intermediate arrays of :func:`ttc.engine.runner.pair_detail`.
 
 One rule throughout: the lead is the current box holding most ego-lane lidar points
 (:func:`lead_box_of`); its row is the one flagged ``is_lead``, else the pair's first row with
@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 
 from ttc.evaluation.errors import lead_rows
-from ttc.lidar import lead_box_of  # noqa: F401  (the rule, re-exported)
 from ttc.rows import PairDetail
+from ttc.steps.lidar import lead_box_of  # noqa: F401  (the rule, re-exported)
 
 
 def lead_row(detail: PairDetail) -> pd.Series:

@@ -23,10 +23,10 @@ from ttc.evaluation.diagnosis import (
     setting_key,
     with_reasons,
 )
+from ttc.evaluation.lead_distance import euclidean_clusters
 from ttc.evaluation.metrics import run_metrics
-from ttc.evaluation.reference import euclidean_clusters
-from ttc.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams
-from ttc.lidar_ttc import rear_distance as estimator_distance
+from ttc.steps.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams
+from ttc.steps.lidar_ttc import rear_distance as estimator_distance
 
 #: Closest box point this far in front of the reference rear: points ahead of the bumper.
 AHEAD_M = 0.10
@@ -308,8 +308,8 @@ def other_object_pairs(t: pd.DataFrame) -> pd.DataFrame:
 
 def estimator_marks(points: np.ndarray, params: LidarTTCParams | None = None) -> dict[str, float]:
     """The distance (metres, NaN if none) every estimator of
-    :data:`~ttc.lidar_ttc.LIDAR_ESTIMATORS` picks on one box's points (N × ≥3, metres), with
-    the other parameters of ``params`` (default :class:`~ttc.lidar_ttc.LidarTTCParams`)."""
+    :data:`~ttc.steps.lidar_ttc.LIDAR_ESTIMATORS` picks on one box's points (N × ≥3, metres), with
+    the other parameters of ``params`` (default :class:`~ttc.steps.lidar_ttc.LidarTTCParams`)."""
     params = params or LidarTTCParams()
     return {
         name: estimator_distance(points, dataclasses.replace(params, name=name)).distance

@@ -1,8 +1,8 @@
-"""Judging against an exact truth (a generated recording, :mod:`ttc.scale_truth`) instead of
+"""Judging against an exact truth (a generated recording, :mod:`ttc.io.scaled_pairs`) instead of
 the lidar reference: the truth as a reference table, metrics per target TTC and overall, and
 how a ranking on the truth agrees with the ranking of the same settings on a real sequence.
 
-The rows of a generated recording carry the truth columns (:data:`ttc.frames.TRUTH_COLUMNS`).
+The rows of a generated recording carry the truth columns (:data:`ttc.io.frames.TRUTH_COLUMNS`).
 :func:`truth_reference` turns them into the reference's columns (every pair judgeable, on a
 collision course, regime ``approach``, no uncertainty), so the errors, metrics, ranking and
 bootstrap of :mod:`ttc.evaluation` apply unchanged: MiD = 10⁴ · |ln r̂ − ln ratio_true|, the

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from ttc.frames import frame_interval
+from ttc.io.frames import frame_interval
 
 #: OpenCV interpolation flags by name (:attr:`ScaleTruthParams.interpolation`).
 INTERPOLATIONS = {
@@ -46,7 +46,7 @@ class ScaleTruthParams:
 
     ``source_step``: every how-many-th real frame is a source (from ``first`` to ``last``);
     ``targets_s``: target TTCs (s) at the recording's nominal frame interval
-    (:func:`ttc.frames.frame_interval`, 0.1 s: a generated recording has no timestamps).
+    (:func:`ttc.io.frames.frame_interval`, 0.1 s: a generated recording has no timestamps).
     Photometric:
     ``noise_sigma`` (grey levels, Gaussian per pixel), ``contrast`` / ``brightness`` (each image
     gets a gain in ``1 ± contrast`` and an offset in ``± brightness`` grey levels),

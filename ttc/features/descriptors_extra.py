@@ -1,7 +1,7 @@
 """The descriptors OpenCV ships beyond the rubric's six: KAZE, and from opencv-contrib's
 ``xfeatures2d`` BEBLID, TEBLID, DAISY, LATCH, LUCID, BoostDesc and VGG.
 
-Same contract as :mod:`ttc.descriptors` (which merges :data:`EXTRA_DESCRIPTORS` into its
+Same contract as :mod:`ttc.features.descriptors` (which merges :data:`EXTRA_DESCRIPTORS` into its
 registry): a frozen parameter dataclass per descriptor, named by ``name``, and a factory
 ``(params, detector name) → OpenCV extractor``. KAZE, DAISY and VGG give float32 descriptors
 (L2), the others binary uint8 strings (Hamming); BoostDesc is offered in its binary variants
@@ -19,8 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from ttc.detectors_extra import KAZE_DIFFUSIVITIES
-from ttc.feature_base import (
+from ttc.features.base import (
     opencv_constant,
     opencv_factory,
     opencv_has,
@@ -28,6 +27,7 @@ from ttc.feature_base import (
     require_name,
     require_positive,
 )
+from ttc.features.detectors_extra import KAZE_DIFFUSIVITIES
 
 #: Documented scale factors (BEBLID/TEBLID: "1.00 for ORB, 6.75 for SIFT, 6.25 for KAZE/SURF,
 #: 5.00 for AKAZE, MSD, AGAST, FAST, BRISK"); BoostDesc/VGG say 0.75 for ORB. Detectors the

@@ -1,6 +1,6 @@
 """The cached stages of one setting (objects, lidar, keypoints, descriptors, matches) and the
 order they are produced in: the cache keys, the chunked streaming over a frame range, and the
-list of input files a run reads. Used by :mod:`ttc.engine`.
+list of input files a run reads. Used by :mod:`ttc.engine.runner`.
 
 ============  ==========================================================  ==============
 stage         key (besides its version and the OpenCV and numpy versions)  content
@@ -30,9 +30,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ttc.cache import Lookup, RecentArrays, StageCache, Task, cache_key
-from ttc.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_binary
-from ttc.frames import (
+from ttc.engine.cache import Lookup, RecentArrays, StageCache, Task, cache_key
+from ttc.features.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_binary
+from ttc.features.keypoints import detect_keypoints
+from ttc.features.klt import track_keypoints
+from ttc.features.matching import knn_candidates, tracks_to_arrays, uses_descriptors
+from ttc.features.objects import detect_objects, model_identity
+from ttc.io.frames import (
     CAM_TO_CAM,
     TIMESTAMP_FILES,
     TRUTH_FILE,
@@ -45,13 +49,9 @@ from ttc.frames import (
     read_image,
     read_lidar_scan,
 )
-from ttc.keypoints import detect_keypoints
-from ttc.klt import track_keypoints
-from ttc.lidar import crop_to_lane
-from ttc.matching import knn_candidates, tracks_to_arrays, uses_descriptors
-from ttc.objects import detect_objects, model_identity
 from ttc.plugins import USER, code_identity
 from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
+from ttc.steps.lidar import crop_to_lane
 
 #: Version of each cached stage (:data:`ttc.settings.CACHED_STAGES`).
 STAGE_VERSIONS = dict.fromkeys(CACHED_STAGE_NAMES, 1)
@@ -89,7 +89,7 @@ _GRAYS = RecentArrays()
 
 def gray_image(path: Path, decode: Callable[[], np.ndarray]) -> np.ndarray:
     """The grey image (H × W uint8, read-only) of image file ``path``: ``decode()`` (its BGR
-    image) converted once per process and file content (:func:`ttc.frames.file_identity`).
+    image) converted once per process and file content (:func:`ttc.io.frames.file_identity`).
     A batch of settings reads each frame's image once per detector and descriptor: decoding
     the PNG again cost more than describing it with a fast descriptor."""
     ident = file_identity(path)

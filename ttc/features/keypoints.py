@@ -1,8 +1,8 @@
 """Keypoint detection: thirteen OpenCV detectors behind one call, keypoints as (N, 7) arrays.
 
-The array format and the OpenCV helpers are in :mod:`ttc.feature_base` (re-exported here). The
+The array format and the OpenCV helpers are in :mod:`ttc.features.base` (re-exported here). The
 rubric's seven detectors are defined in this module, the other six OpenCV ships
-(:data:`EXTRA_DETECTOR_NAMES`) in :mod:`ttc.detectors_extra`, and ``custom`` (a callable from
+(:data:`EXTRA_DETECTOR_NAMES`) in :mod:`ttc.features.detectors_extra`, and ``custom`` (a callable from
 your own module) in :mod:`ttc.plugins`.
 
 Each detector has a frozen parameter dataclass (plain int/float/bool/str fields, so Hydra can
@@ -25,8 +25,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ttc.detectors_extra import EXTRA_DETECT, EXTRA_DETECTORS
-from ttc.feature_base import (  # noqa: F401  (re-exported: the keypoint API lives here)
+from ttc.features.base import (  # noqa: F401  (re-exported: the keypoint API lives here)
     ANGLE,
     CLASS_ID,
     CONTRIB_PACKAGE,
@@ -50,6 +49,7 @@ from ttc.feature_base import (  # noqa: F401  (re-exported: the keypoint API liv
     require_name,
     require_positive,
 )
+from ttc.features.detectors_extra import EXTRA_DETECT, EXTRA_DETECTORS
 from ttc.plugins import USER, CustomDetectorParams, detect_custom
 
 

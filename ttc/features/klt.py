@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ttc.feature_base import X, Y, check_gray, empty_keypoints, require_name, require_positive
+from ttc.features.base import X, Y, check_gray, empty_keypoints, require_name, require_positive
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ttc.box_matching import points_in_rois, shrink_rois
+from ttc.steps.box_matching import points_in_rois, shrink_rois
 
 #: Scales a median absolute deviation to a Gaussian standard deviation.
 MAD_TO_SIGMA = 1.4826

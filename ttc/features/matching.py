@@ -24,7 +24,7 @@ neighbours for ~25 % (LSH, ORB) and ~38 % (KD-tree, SIFT) of the queries on KITT
 process and worker. BF is exact and deterministic.
 
 Beyond descriptor matching: ``matcher=klt`` tracks the previous frame's keypoints into the
-current frame (:mod:`ttc.klt`, no descriptor; :func:`tracks_to_matches` gives the same
+current frame (:mod:`ttc.features.klt`, no descriptor; :func:`tracks_to_matches` gives the same
 index pairs) and ``matcher=custom`` calls your own k = 2 candidate function
 (:mod:`ttc.plugins`). :data:`MATCHER_PARAMS` maps every matcher name to its parameter class.
 """
@@ -39,7 +39,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ttc.klt import KltParams, Tracks
+from ttc.features.klt import KltParams, Tracks
 from ttc.plugins import USER, CustomMatcherParams, match_custom
 
 FLANN_SEED = 0

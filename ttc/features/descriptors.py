@@ -19,7 +19,7 @@ crashing (or trying to allocate 70 GB). What OpenCV 4.14 does with them on KITTI
 
 Every other pair of the rubric's (35 of 42) gives descriptors on KITTI frames 0 and 1 (checked
 by ``tests/test_features.py``). The eight descriptors beyond the rubric are in
-:mod:`ttc.descriptors_extra`; what their pairs do is listed at :data:`INVALID_PAIRS` and checked
+:mod:`ttc.features.descriptors_extra`; what their pairs do is listed at :data:`INVALID_PAIRS` and checked
 on every pair by ``tests/test_feature_zoo.py``. A detector or descriptor the installed OpenCV
 lacks raises :class:`FeatureUnavailableError` (a skip, like an invalid pair) before any work.
 """
@@ -34,15 +34,15 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ttc.descriptors_extra import (
+from ttc.features.descriptors_extra import (
     COLOUR_DESCRIPTORS,
     EXTRA_DESCRIPTORS,
     EXTRA_EXTRACTORS,
     EXTRA_FLOAT_DESCRIPTORS,
     descriptor_available,
 )
-from ttc.detectors_extra import detector_available
-from ttc.keypoints import (
+from ttc.features.detectors_extra import detector_available
+from ttc.features.keypoints import (
     AKAZE_DIFFUSIVITIES,
     DETECTORS,
     RUBRIC_DETECTORS,

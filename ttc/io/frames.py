@@ -424,7 +424,7 @@ def frame_indices(first: int, last: int, step: int = 1) -> list[int]:
 
 #: How a frame range is cut into pairs: every frame with the next (``consecutive``: 0→1, 1→2,
 #: …) or frames two by two (``disjoint``: 0→1, 2→3, …; a generated recording of independent
-#: pairs, :mod:`ttc.scale_truth`).
+#: pairs, :mod:`ttc.io.scaled_pairs`).
 PAIRINGS = ("consecutive", "disjoint")
 
 
@@ -440,7 +440,7 @@ def frame_pairs(indices: list[int], pairing: str = "consecutive") -> list[tuple[
     return list(zip(indices[0::2], indices[1::2], strict=True))
 
 
-#: A recording's truth table (generated recordings, :mod:`ttc.scale_truth`): one row per frame
+#: A recording's truth table (generated recordings, :mod:`ttc.io.scaled_pairs`): one row per frame
 #: pair, labelled by its current ``frame``, with the columns of :data:`TRUTH_COLUMNS`.
 TRUTH_FILE = "truth.csv"
 #: Columns a truth table gives every row of its pair: the true TTC (s) and distance ratio

@@ -1,12 +1,12 @@
 """The keypoint detectors OpenCV ships beyond the rubric's seven: KAZE, AGAST, MSER, Star,
 MSD and Harris–Laplace (the last three from opencv-contrib's ``xfeatures2d``).
 
-Same contract as :mod:`ttc.keypoints` (which merges :data:`EXTRA_DETECTORS` into its
+Same contract as :mod:`ttc.features.keypoints` (which merges :data:`EXTRA_DETECTORS` into its
 registry): a frozen parameter dataclass per detector, named by ``name``, and a function
 ``(gray uint8 H × W, params) → (N, 7) keypoint array``. Defaults are OpenCV's, except AGAST's
 ``threshold`` (30 grey levels, as this project's FAST and BRISK: OpenCV's 10 gives ~10⁴
 keypoints on a KITTI frame). A detector the installed OpenCV lacks raises
-:class:`~ttc.feature_base.OpenCVFeatureMissing` (see :func:`detector_available`).
+:class:`~ttc.features.base.OpenCVFeatureMissing` (see :func:`detector_available`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ttc.feature_base import (
+from ttc.features.base import (
     detect_with,
     opencv_constant,
     opencv_factory,

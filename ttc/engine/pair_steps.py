@@ -1,0 +1,214 @@
+"""FP.1–FP.4 of one frame pair for every setting of a streamed group, each piece computed once.
+
+:class:`PairSteps` holds the arrays of one frame pair (objects, lane points, keypoints, the
+matcher's candidates) that every setting of a group reads, and computes each piece of
+FP.1–FP.4 once for all the settings that share its inputs (the table in
+:mod:`ttc.engine.runner`). Rows are built by :mod:`ttc.rows`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from ttc.engine.cache import Lookup
+from ttc.features.keypoints import X, Y
+from ttc.features.matching import current_keypoints, pair_matches
+from ttc.io.frames import Calibration
+from ttc.rows import MEMBER, box_head, camera_columns, lidar_columns, pair_columns
+from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
+from ttc.steps.box_matching import count_shared_matches, match_boxes
+from ttc.steps.camera_ttc import camera_ttc
+from ttc.steps.keypoint_filter import filter_box_matches
+from ttc.steps.lidar import assign_points_to_boxes, lead_box_of, project_to_image
+from ttc.steps.lidar_ttc import lidar_ttc
+
+
+def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
+    """``(fn(), ms)``."""
+    start = time.perf_counter()
+    out = fn()
+    return out, 1e3 * (time.perf_counter() - start)
+
+
+def _memo(store: dict, key: Any, fn: Callable[[], Any]) -> tuple[Any, float]:
+    """``(fn(), ms)`` computed once per ``key`` (later calls get the first's result and time)."""
+    if key not in store:
+        store[key] = _timed(fn)
+    return store[key]
+
+
+class PairSteps:
+    """One frame pair of a group: the arrays every member reads and the FP.1–FP.4 pieces
+    computed so far, keyed by the parameters they depend on (see the module docstring)."""
+
+    def __init__(
+        self,
+        frames: FrameRange,
+        calib: Calibration,
+        dt: float,
+        prev: int,
+        curr: int,
+        per_frame: dict[str, dict[int, Lookup]],
+        match: Lookup,
+    ) -> None:
+        self.frames, self.calib, self.dt, self.prev, self.curr = frames, calib, dt, prev, curr
+        self.per_frame, self.match = per_frame, match
+        self.obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
+        self.lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
+        self.desc_prev = per_frame["descriptors"][prev].arrays
+        desc_curr = per_frame["descriptors"][curr].arrays
+        self.kp_curr = current_keypoints(desc_curr["keypoints"], match.arrays)  # KLT: tracked
+        self.xy_prev = self.desc_prev["keypoints"][:, [X, Y]]
+        self.xy_curr = self.kp_curr[:, [X, Y]]
+        self.memo: dict[str, dict] = {k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base")}
+        self.assoc: tuple | None = None
+
+    def rows(
+        self, s: Settings, k: dict[str, str], member: int, detail: dict | None = None
+    ) -> list[dict[str, Any]]:
+        """The rows of this pair under setting ``s`` (step keys ``k``), lead box first, each
+        with :data:`MEMBER` = ``member``. ``detail``, when given, receives the intermediate
+        arrays (see :class:`~ttc.rows.PairDetail`)."""
+        selected, ms_select = _memo(
+            self.memo["sel"], k["selector"], lambda: pair_matches(self.match.arrays, s.selector)
+        )
+        box_matches, ms_fp1 = self._fp1(s, k, selected)
+        uv, owners, lead_box, ms_assoc = self._association(s)
+        box_pairs = list(
+            zip(box_matches.prev_box.tolist(), box_matches.curr_box.tolist(), strict=True)
+        )
+        shared = dict(zip(box_matches.curr_box.tolist(), box_matches.shared.tolist(), strict=True))
+        if lead_box >= 0 and lead_box in [c for _, c in box_pairs]:
+            box_pairs.sort(key=lambda pc: pc[1] != lead_box)
+        else:
+            box_pairs.insert(0, (-1, lead_box))  # the lead row is always present
+        base = self._base(k, selected, ms_select, ms_fp1, ms_assoc)
+        rows = []
+        for prev_box, curr_box in box_pairs:
+            row = {**base, **box_head(self.obj[self.curr], owners[self.curr], prev_box,
+                                      curr_box, lead_box)}  # fmt: skip
+            if prev_box >= 0:
+                row.update(self._fp2(s, k, owners, prev_box, curr_box))
+                row.update(self._fp34(s, k, selected, curr_box, detail, curr_box == lead_box))
+            row["box_shared_matches"] = shared.get(curr_box, 0) if prev_box >= 0 else 0
+            row["error"] = ""
+            row[MEMBER] = member
+            rows.append(row)
+        if detail is not None:
+            detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
+                          lead_box=lead_box)  # fmt: skip
+        return rows
+
+    def _association(self, s: Settings) -> tuple[dict, dict, int, float]:
+        """(lane points' pixels, their owner box, lead box, ms) per frame, once per pair (its
+        inputs are upstream of every member). The lead is the current box holding most lane
+        lidar points."""
+        if self.assoc is None:
+            prev, curr, lane, obj = self.prev, self.curr, self.lane, self.obj
+
+            def associate():
+                uv = {
+                    i: project_to_image(lane[i]["points"][:, :3], self.calib.velo_to_image)
+                    for i in (prev, curr)
+                }
+                owners = {
+                    i: assign_points_to_boxes(uv[i], obj[i]["roi"], s.lidar_shrink) for i in uv
+                }
+                return uv, owners
+
+            (uv, owners), ms = _timed(associate)
+            self.assoc = (uv, owners, lead_box_of(owners[curr], len(obj[curr]["roi"])), ms)
+        return self.assoc
+
+    def _fp1(self, s: Settings, k: dict[str, str], selected: Any) -> tuple[Any, float]:
+        prev, curr, obj = self.prev, self.curr, self.obj
+
+        def fp1():
+            counts = count_shared_matches(
+                self.xy_prev, self.xy_curr, selected.prev_idx, selected.curr_idx,
+                obj[prev]["roi"], obj[curr]["roi"], s.box_matching.shrink,
+            )  # fmt: skip
+            return match_boxes(counts, s.box_matching)
+
+        return _memo(self.memo["fp1"], (k["selector"], k["box_matching"]), fp1)
+
+    def _base(
+        self, k: dict[str, str], selected: Any, ms_select: float, ms_fp1: float, ms_assoc: float
+    ) -> dict[str, Any]:
+        """The pair's columns (:func:`ttc.rows.pair_columns`), once per selection and FP.1."""
+        key = (k["selector"], k["box_matching"])
+        if key not in self.memo["base"]:
+            prev, curr, pf = self.prev, self.curr, self.per_frame
+            counts = {
+                "keypoints_prev": pf["keypoints"][prev].arrays["keypoints"].shape[0],
+                "keypoints_curr": pf["keypoints"][curr].arrays["keypoints"].shape[0],
+                "described_curr": self.kp_curr.shape[0],
+                "matches_total": len(selected.prev_idx),
+            }
+            ms = {
+                "objects": pf["objects"][curr].ms,
+                "lidar": pf["lidar"][curr].ms + ms_assoc,
+                "keypoints": pf["keypoints"][curr].ms,
+                "descriptors": pf["descriptors"][curr].ms,
+                "matching": self.match.ms + ms_select,
+                "box_matching": ms_fp1,
+            }
+            cached = {
+                stage: (self.match if stage == "matches" else pf[stage][curr]).cached
+                for stage in CACHED_STAGE_NAMES
+            }
+            boxes = {i: len(self.obj[i]["roi"]) for i in (prev, curr)}
+            self.memo["base"][key] = pair_columns(
+                prev, curr, self.dt, self.lane, boxes, counts, ms, cached,
+                self.frames.min_scan_points,
+            )  # fmt: skip
+        return self.memo["base"][key]
+
+    def _fp2(
+        self, s: Settings, k: dict[str, str], owners: dict, prev_box: int, curr_box: int
+    ) -> dict[str, Any]:
+        key = (prev_box, curr_box, k["lidar_ttc"])
+        if key not in self.memo["fp2"]:
+            pts_prev = self.lane[self.prev]["points"][owners[self.prev] == prev_box][:, :3]
+            pts_curr = self.lane[self.curr]["points"][owners[self.curr] == curr_box][:, :3]
+            dt = self.dt
+            lid, ms = _timed(lambda: lidar_ttc(pts_prev, pts_curr, dt, s.lidar_ttc))
+            self.memo["fp2"][key] = lidar_columns(lid, pts_prev, pts_curr, ms)
+        return self.memo["fp2"][key]
+
+    def _fp34(
+        self,
+        s: Settings,
+        k: dict[str, str],
+        selected: Any,
+        curr_box: int,
+        detail: dict | None = None,
+        is_lead: bool = False,
+    ) -> dict[str, Any]:
+        fp3_key = (k["selector"], curr_box, s.box_matching.shrink, k["keypoint_filter"])
+        if fp3_key not in self.memo["fp3"]:
+            roi = self.obj[self.curr]["roi"][curr_box]
+            self.memo["fp3"][fp3_key] = _timed(
+                lambda: filter_box_matches(
+                    self.xy_prev,
+                    self.xy_curr,
+                    selected.prev_idx,
+                    selected.curr_idx,
+                    roi,
+                    s.box_matching.shrink,
+                    s.keypoint_filter,
+                )  # fmt: skip
+            )
+        filt, ms_fp3 = self.memo["fp3"][fp3_key]
+        if detail is not None and is_lead:
+            detail.update(kept=filt.kept, removed=filt.removed)
+        fp4_key = (fp3_key, k["camera_ttc"])
+        if fp4_key not in self.memo["fp4"]:
+            kept_prev = self.xy_prev[selected.prev_idx[filt.kept]]
+            kept_curr = self.xy_curr[selected.curr_idx[filt.kept]]
+            dt = self.dt
+            cam, ms_fp4 = _timed(lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc))
+            self.memo["fp4"][fp4_key] = camera_columns(cam, filt, ms_fp3, ms_fp4)
+        return self.memo["fp4"][fp4_key]
