@@ -10,39 +10,23 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
 from experiments import progress, store
 from experiments.finished import nothing_computed_line, summary_head
-from ttc.settings import SETTING_AXES
+from ttc.settings import SETTING_AXES, only_sensor_axes
 
 SETTING_COLUMNS = list(SETTING_AXES)
-
-
-def interim_scores(frames: pd.DataFrame) -> pd.DataFrame:
-    """Median |TTC camera − TTC lidar| (s) of the lead vehicle per run, finite pairs only.
-
-    A stop-gap score until a reference TTC is available: low means camera and lidar agree.
-    """
-    lead = frames[frames["is_lead"]]
-    both = lead[np.isfinite(lead["ttc_camera"]) & np.isfinite(lead["ttc_lidar"])]
-    diff = (both["ttc_camera"] - both["ttc_lidar"]).abs().rename("median_abs_diff_s")
-    scores = diff.groupby([both["run_id"], *[both[c] for c in SETTING_COLUMNS]]).median()
-    valid = both.groupby("run_id").size().rename("finite_pairs")
-    total = lead.groupby("run_id").size().rename("pairs")
-    out = scores.reset_index().merge(valid, on="run_id").merge(total, on="run_id")
-    return out.sort_values(["median_abs_diff_s", "run_id"], ignore_index=True)
 
 
 #: Settings listed by the summary's second table (the fused ranking of a sweep ranked on
 #: another sensor).
 FUSED_SHOWN = 3
 #: Axes that change only the lidar TTC: a sweep varying nothing else is ranked on the lidar.
-LIDAR_ONLY_AXES = ("lidar_ttc",)
+LIDAR_ONLY_AXES = only_sensor_axes("lidar")
 #: The axis that changes only the fused TTC.
-FUSION_AXIS = "fusion"
+(FUSION_AXIS,) = only_sensor_axes("fused")
 
 
 def ranked_sensor(runs: pd.DataFrame) -> str:
@@ -88,7 +72,7 @@ def sweep_references(
     try:
         return recording_references(frames, runs[runs["status"] == "ok"], data_dir, cache)
     except (OSError, ValueError) as exc:
-        print(f"(no reference TTC: {exc}; ranking by the interim score instead)")
+        print(f"(no ranking: no reference TTC to judge against: {exc})")
         return None
 
 
@@ -99,7 +83,7 @@ def pooled_runs(
     (:func:`ttc.evaluation.drive_rankings`, each run against its own recording's reference;
     no bootstrap intervals: the report's ``drives.md`` has them); ``run_id`` is the setting
     id shared by its runs on every recording."""
-    from experiments.report.drives import drive_name, runs_drive_rankings  # noqa: PLC0415
+    from experiments.recordings import drive_name, runs_drive_rankings  # noqa: PLC0415
     from ttc import evaluation as ev  # noqa: PLC0415
 
     named = {drive_name(sequence): ref for sequence, ref in references.items()}
@@ -137,8 +121,8 @@ def summarise_sweep(
 ) -> pd.DataFrame:
     """Collect the sweep (:class:`store.StoreError` naming a corrupt rows file), print where
     the dataset is, the run counts, the failures and the best settings: ranked against the
-    reference TTC (:mod:`ttc.evaluation`), or by the interim camera-vs-lidar score when no
-    reference can be built (a ranking that raises is reported in one line: the merged data
+    reference TTC by :mod:`ttc.evaluation`'s rule (no ranking, with the reason, when no
+    reference can be built; a ranking that raises is reported in one line: the merged data
     stands). ``data_dir`` / ``cache_dir``: None for the configured defaults.
 
     Only the lead rows are loaded (the ranking's rows), so a sweep of millions of rows is
@@ -169,6 +153,8 @@ def summarise_sweep(
     except Exception as exc:  # the merge stands; the ranking is the report's job
         print(f"\n(no ranking: {type(exc).__name__}: {exc})")
         return pd.DataFrame()
+    if not tables:
+        return pd.DataFrame()
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         for n, (scores, title) in zip((top, FUSED_SHOWN), tables, strict=False):
             print(f"\nbest {n} settings {title}:")
@@ -181,7 +167,7 @@ def summarise_sweep(
 
 def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
     """What ``experiments.report`` writes for this sweep, in a few words."""
-    from experiments.reference_store import recording_of  # noqa: PLC0415
+    from experiments.recordings import recording_of  # noqa: PLC0415
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
@@ -205,16 +191,16 @@ def _ranked(
 
 
 def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list[tuple]:
-    """[(ranked settings, title)]: against the reference (pooled over the recordings of a
-    sweep over several), else by the interim score; when the sweep is ranked on another
-    sensor and holds runs with a fusion, also those runs ranked on the fused TTC."""
+    """[(ranked settings, title)] by :data:`ttc.evaluation.RANKING_RULE`: against the
+    reference (pooled over the recordings of a sweep over several), none when no reference
+    can be built; when the sweep is ranked on another sensor and holds runs with a fusion,
+    also those runs ranked on the fused TTC."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
     references = sweep_references(frames, runs, data_dir, cache_dir)
     if not references:
-        title = "by median |TTC camera - TTC lidar| (interim score, no reference)"
-        return [(interim_scores(frames), title)]
+        return []
     ok = runs[runs["status"] == "ok"]
     sensor = ranked_sensor(ok)
     against = "the exact truth" if ev.has_truth(frames) else "the reference"

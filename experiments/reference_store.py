@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import hashlib
 import inspect
-import json
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from experiments.paths import default_cache_dir, default_data_root
+from experiments.recordings import recording_of, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache, Task, cache_key
 from ttc.evaluation import lead_distance
@@ -78,19 +78,6 @@ def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
     """Reference TTC over every frame of the recording (:func:`reference_task`), from the
     stage cache when it holds it."""
     return pd.DataFrame(cache.get(reference_task(sequence_dir)).arrays)
-
-
-def recording_of(runs: pd.DataFrame) -> pd.Series:
-    """The recording (``dataset.sequence``, a folder under the data root) of each run, by
-    run id."""
-    sequences = [json.loads(c)["dataset"]["sequence"] for c in runs["config"]]
-    return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
-
-
-def run_ids_by_recording(runs: pd.DataFrame) -> dict[str, list[str]]:
-    """The run ids of each recording (``dataset.sequence``) of ``runs``, recordings sorted."""
-    recording = recording_of(runs)
-    return {seq: list(recording.index[recording == seq]) for seq in sorted(set(recording))}
 
 
 def recording_references(

@@ -13,7 +13,7 @@ process at a time (a lock file beside it).
 
 The lead vehicle of a source frame (its rear centre for the warp and its lidar points) comes
 from the real frame through the pipeline's own cached stages and rule: YOLO boxes (default
-``objects``), the lane crop, :func:`ttc.steps.lidar.lead_box_of`.
+``objects``), the lane crop, :func:`ttc.steps.lidar.associate_lead`.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from ttc.io.frames import (
 )
 from ttc.io.scaled_pairs import ScaleTruthParams, SyntheticPair, make_pair
 from ttc.settings import FrameRange, Settings
-from ttc.steps.lidar import assign_points_to_boxes, lane_mask, lead_box_of, project_to_image
+from ttc.steps.lidar import assign_points_to_boxes, associate_lead, lane_mask
 
 #: Bump when the written folder's layout changes (the code hashes cover the rest).
 LAYOUT_VERSION = 1
@@ -95,13 +95,13 @@ def source_leads(
             lookup.arrays for lookup in cache.resolve([stages.objects(k), stages.lidar(k)])
         )
         rois, points = objects["roi"], lane["points"]
-        uv = project_to_image(points[:, :3], calib.velo_to_image)
-        lead = lead_box_of(assign_points_to_boxes(uv, rois, settings.lidar_shrink), len(rois))
+        found = associate_lead(points, calib.velo_to_image, rois, settings.lidar_shrink)
+        lead = found.lead
         if lead < 0:
             width, height = calib.image_size
             out.append(SourceLead(k, np.zeros(4, np.int64), (width / 2, height / 2), points[:0]))
             continue
-        inner = assign_points_to_boxes(uv, rois, params.point_shrink) == lead
+        inner = assign_points_to_boxes(found.uv, rois, params.point_shrink) == lead
         x, y, w, h = (float(v) for v in rois[lead])
         out.append(SourceLead(k, rois[lead], (x + w / 2, y + h / 2), points[inner]))
     return out
@@ -127,17 +127,14 @@ def consistent_points(pair: SyntheticPair, calib: Calibration, settings: Setting
     """(N + n,) bool over the rows of :meth:`SyntheticPair.scans`: the points the pipeline's
     rules keep in both frames of the pair: inside the lane crop (:func:`ttc.steps.lidar.lane_mask`)
     and assigned to the lead box (YOLO with ``settings.objects`` on each synthetic image,
-    :func:`ttc.steps.lidar.assign_points_to_boxes` with ``settings.lidar_shrink``,
-    :func:`ttc.steps.lidar.lead_box_of`). The scans keep only these, so both hold the same points
+    :func:`ttc.steps.lidar.associate_lead` with ``settings.lidar_shrink``). The scans keep only these, so both hold the same points
     and the distance ratio of any order statistic is exactly the truth's."""
     scans = pair.scans()
     keep = np.ones(len(scans[0]), dtype=bool)
     for image, points in zip((pair.image_prev, pair.image_curr), scans, strict=True):
         rois = detect_objects(image, settings.objects).roi
-        uv = project_to_image(points[:, :3], calib.velo_to_image)
-        owner = assign_points_to_boxes(uv, rois, settings.lidar_shrink)
-        lead = lead_box_of(owner, len(rois))
-        keep &= (owner == lead) & (lead >= 0) & lane_mask(points, settings.lane)
+        found = associate_lead(points, calib.velo_to_image, rois, settings.lidar_shrink)
+        keep &= (found.owner == found.lead) & (found.lead >= 0) & lane_mask(points, settings.lane)
     return keep
 
 

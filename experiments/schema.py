@@ -8,21 +8,13 @@ from __future__ import annotations
 
 import pandas as pd
 
+from ttc.settings import AXIS_TABLE
+
 # (column, pandas dtype kind, unit, meaning); kinds: "str", "int", "float", "bool"
 FRAME_COLUMNS: list[tuple[str, str, str, str]] = [
     ("run_id", "str", "", "hash of the run's setting config; joins runs.parquet"),
     ("sweep_id", "str", "", "sweep folder name"),
-    ("detector", "str", "", "keypoint detector (+subpixel: refined keypoints)"),
-    ("descriptor", "str", "", "keypoint descriptor (none with matcher=klt)"),
-    ("matcher", "str", "", "bf, flann, klt (tracking) or custom"),
-    ("selector", "str", "", "nn or knn (none with matcher=klt)"),
-    ("box_matching", "str", "", "FP.1 strategy"),
-    ("lidar_ttc", "str", "", "FP.2 estimator"),
-    ("keypoint_filter", "str", "", "FP.3 outlier filter"),
-    ("camera_ttc", "str", "", "FP.4 estimator"),
-    ("fusion", "str", "", "FP.7 fusion: none, kalman_cv or kalman_ca"),
-    ("objects", "str", "", "object detector config"),
-    ("dataset", "str", "", "dataset config (frame range)"),
+    *((axis.name, "str", "", axis.doc) for axis in AXIS_TABLE),
     ("git_commit", "str", "", "code version of the run"),
     ("prev_frame", "int", "", "index of the previous frame"),
     ("frame", "int", "", "index of the current frame"),

@@ -33,7 +33,8 @@ from omegaconf import DictConfig
 
 from experiments import store
 from experiments.config import data_root
-from experiments.reference_store import recording_references, run_ids_by_recording
+from experiments.recordings import run_ids_by_recording
+from experiments.reference_store import recording_references
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.settings import AXES

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from experiments.schema import markdown_table
 from tests.conftest import PROJECT_ROOT
+from ttc.settings import AXES
 
 README = (PROJECT_ROOT / "README.md").read_text()
 
@@ -18,7 +19,6 @@ def test_readme_test_command_is_the_ci_command() -> None:
 
 
 def test_every_config_group_value_is_listed() -> None:
-    for group in ("detector", "descriptor", "matcher", "selector", "box_matching", "lidar_ttc",
-                  "keypoint_filter", "camera_ttc", "objects", "dataset"):  # fmt: skip
+    for group in AXES:
         for option in sorted((PROJECT_ROOT / "conf" / group).glob("*.yaml")):
             assert option.stem in README, f"{group}/{option.stem} missing from README"

@@ -89,7 +89,8 @@ def test_the_sweep_summary_and_tracking_judge_each_run_on_its_own_drive(
     to the interim camera-vs-lidar score), and the MLflow metrics judge each run against its
     own drive's reference (they failed: one reference for two recordings)."""
     from experiments.collect import summarise_sweep
-    from experiments.reference_store import recording_of, sequence_reference
+    from experiments.recordings import recording_of
+    from experiments.reference_store import sequence_reference
     from experiments.tracking import _metrics_of
     from ttc.engine.cache import StageCache
 
@@ -122,3 +123,19 @@ def test_the_sweep_summary_and_tracking_judge_each_run_on_its_own_drive(
         weighted = (mine["lidar_invalid_rate"] * mine["n_frames"]).sum() / 44
         assert row["lidar_invalid_rate"] == pytest.approx(weighted)
     assert sorted(table["rank"]) == [1, 2]
+
+
+@pytest.mark.slow  # uses the two-drive sweep above
+def test_without_a_reference_the_summary_ranks_nothing_and_says_why(
+    two_drive_sweep, tmp_path, capsys
+) -> None:
+    """The summary ranks by ttc.evaluation's rule only: a data root without the recordings
+    (no reference can be built) gives no ranking and the reason, not a second score."""
+    from experiments.collect import summarise_sweep
+
+    sweep_dir, _ = two_drive_sweep
+    table = summarise_sweep(sweep_dir, data_dir=tmp_path / "empty", cache_dir=tmp_path / "c")
+    printed = capsys.readouterr().out
+    assert table.empty
+    assert "no ranking: no reference TTC to judge against" in printed
+    assert "best " not in printed and "sweep dataset:" in printed

@@ -11,7 +11,7 @@ from ttc.io.frames import load_calibration, load_frame
 from ttc.steps.lidar import (
     LaneCropParams,
     assign_points_to_boxes,
-    associate_lidar,
+    associate_lead,
     crop_to_lane,
     project_to_image,
 )
@@ -97,10 +97,8 @@ def test_lead_car_closest_point_frame_0(kitti_dir: Path) -> None:
     frame = load_frame(kitti_dir, 0)
     calib = load_calibration(kitti_dir)
     detections = detect_objects(frame.image, ObjectDetectorParams())
-    assoc = associate_lidar(
-        frame.scan.points, calib.velo_to_image, detections.roi, LaneCropParams()
-    )
-    counts = assoc.counts(len(detections.roi))
-    lead = int(np.argmax(counts))
-    assert counts[lead] > 100
-    assert assoc.of_box(lead)[:, 0].min() == pytest.approx(7.97, abs=0.03)
+    lane = crop_to_lane(frame.scan.points, LaneCropParams())
+    assoc = associate_lead(lane, calib.velo_to_image, detections.roi)
+    counts = np.bincount(assoc.owner[assoc.owner >= 0], minlength=len(detections.roi))
+    assert assoc.lead == int(np.argmax(counts)) and counts[assoc.lead] > 100
+    assert assoc.of_box(lane, assoc.lead)[:, 0].min() == pytest.approx(7.97, abs=0.03)

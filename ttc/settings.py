@@ -50,12 +50,14 @@ class Axis:
     when each option has its own. ``neutral`` lists ``(key, off value)`` options that leave
     a setting's numbers as they were before the option existed: at their off value they are
     left out of run ids and cache keys (a ``name`` key: the whole axis). ``only_sensor`` names
-    the one TTC an axis changes (``lidar``, ``fused``), ``None`` when it changes several.
+    the one TTC an axis changes (``lidar``, ``fused``), ``None`` when it changes several;
+    ``doc``: what its results column holds.
     """
 
     name: str
     role: str
     params: type | Mapping[str, type] | None
+    doc: str
     neutral: tuple[tuple[str, Any], ...] = ()
     only_sensor: str | None = None
 
@@ -68,17 +70,36 @@ class Axis:
 #: The axes, in the order of the results' columns. The one table: settings, configs,
 #: batches, run ids, metrics and reports derive their lists from it.
 AXIS_TABLE: tuple[Axis, ...] = (
-    Axis("detector", "frame_stage", DETECTORS, neutral=(("subpixel", False),)),
-    Axis("descriptor", "frame_stage", DESCRIPTORS),
-    Axis("matcher", "pair_stage", MATCHER_PARAMS),
-    Axis("selector", "step", SelectorParams),
-    Axis("box_matching", "step", BoxMatchingParams),
-    Axis("lidar_ttc", "step", LidarTTCParams, only_sensor="lidar"),
-    Axis("keypoint_filter", "step", KeypointFilterParams),
-    Axis("camera_ttc", "step", CameraTTCParams),
-    Axis("fusion", "fusion", FusionParams, neutral=(("name", "none"),), only_sensor="fused"),
-    Axis("objects", "frame_stage", ObjectDetectorParams),
-    Axis("dataset", "dataset", None, neutral=(("date", ""), ("drive", ""), ("generator", None))),
+    Axis(
+        "detector",
+        "frame_stage",
+        DETECTORS,
+        "keypoint detector (+subpixel: refined keypoints)",
+        neutral=(("subpixel", False),),
+    ),
+    Axis("descriptor", "frame_stage", DESCRIPTORS, "keypoint descriptor (none with matcher=klt)"),
+    Axis("matcher", "pair_stage", MATCHER_PARAMS, "bf, flann, klt (tracking) or custom"),
+    Axis("selector", "step", SelectorParams, "nn or knn (none with matcher=klt)"),
+    Axis("box_matching", "step", BoxMatchingParams, "FP.1 strategy"),
+    Axis("lidar_ttc", "step", LidarTTCParams, "FP.2 estimator", only_sensor="lidar"),
+    Axis("keypoint_filter", "step", KeypointFilterParams, "FP.3 outlier filter"),
+    Axis("camera_ttc", "step", CameraTTCParams, "FP.4 estimator"),
+    Axis(
+        "fusion",
+        "fusion",
+        FusionParams,
+        "FP.7 fusion: none, kalman_cv or kalman_ca",
+        neutral=(("name", "none"),),
+        only_sensor="fused",
+    ),
+    Axis("objects", "frame_stage", ObjectDetectorParams, "object detector config"),
+    Axis(
+        "dataset",
+        "dataset",
+        None,
+        "dataset config (frame range)",
+        neutral=(("date", ""), ("drive", ""), ("generator", None)),
+    ),
 )
 AXIS_BY_NAME: dict[str, Axis] = {a.name: a for a in AXIS_TABLE}
 

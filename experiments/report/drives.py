@@ -5,48 +5,21 @@ each drive are written by :func:`experiments.report.cli.build_report` into ``<ou
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pandas as pd
 
-from experiments.config import setting_hash
-from experiments.reference_store import (
-    recording_of,
-    recording_references,
-    run_ids_by_recording,
-)
+from experiments.recordings import drive_name, run_ids_by_recording, runs_drive_rankings
+from experiments.reference_store import recording_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData
 from ttc import evaluation as ev
 from ttc.settings import AXES
 
-#: ``dataset`` keys that name the drive and its frames: left out of the pooled setting id.
-DRIVE_KEYS = ("sequence", "date", "drive", "first", "last")
 #: Columns of ``drives_ranking.csv`` (per sensor: its ranking keys and outlier rate).
 RANKING_COLUMNS = ["drive", "rank", "rank_lo", "rank_hi", "setting", "run_id", *AXES,
                    "n_frames", "n_judged"]  # fmt: skip
-
-
-def drive_name(sequence: str) -> str:
-    """A recording's short name: its folder without ``_sync``
-    (``kitti_raw/2011_09_26/2011_09_26_drive_0052_sync`` → ``2011_09_26_drive_0052``)."""
-    return Path(sequence).name.removesuffix("_sync")
-
-
-def setting_of(runs: pd.DataFrame) -> pd.Series:
-    """The id of each run's setting without its drive (:data:`DRIVE_KEYS` left out of the
-    stored setting's hash): equal for one setting's runs on every drive, by run id."""
-
-    def key(config: str) -> str:
-        setting = json.loads(config)
-        setting["dataset"] = {
-            k: v for k, v in setting["dataset"].items() if k not in DRIVE_KEYS
-        }  # fmt: skip
-        return setting_hash(setting)
-
-    return pd.Series([key(c) for c in runs["config"]], index=runs["run_id"].to_numpy())
 
 
 def split_by_recording(data: SweepData) -> dict[str, SweepData]:
@@ -92,23 +65,6 @@ def drives_table(
 ) -> pd.DataFrame:
     """:func:`ttc.evaluation.drive_rankings` of the ok runs of ``data`` on ``sensor``."""
     return runs_drive_rankings(data.frames, data.runs, references, sensor, n_boot)
-
-
-def runs_drive_rankings(
-    frames: pd.DataFrame,
-    runs: pd.DataFrame,
-    references: dict[str, pd.DataFrame],
-    sensor: str,
-    n_boot: int = ev.N_BOOT,
-) -> pd.DataFrame:
-    """:func:`ttc.evaluation.drive_rankings` of the ok runs of ``runs`` (run records) and
-    their ``frames`` on ``sensor``; ``references`` by drive name (:func:`drive_name`)."""
-    ok = runs[runs["status"] == "ok"]
-    frames = frames[frames["run_id"].isin(ok["run_id"])]
-    drive = recording_of(ok).map(drive_name)
-    return ev.drive_rankings(
-        frames, drive.to_dict(), setting_of(ok).to_dict(), references, sensor, n_boot
-    )
 
 
 def drives_report(

@@ -21,7 +21,7 @@ from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.box_matching import count_shared_matches, match_boxes
 from ttc.steps.camera_ttc import camera_ttc
 from ttc.steps.keypoint_filter import filter_box_matches
-from ttc.steps.lidar import assign_points_to_boxes, lead_box_of, project_to_image
+from ttc.steps.lidar import LeadAssociation, associate_lead
 from ttc.steps.lidar_ttc import lidar_ttc
 
 
@@ -106,20 +106,20 @@ class PairSteps:
         inputs are upstream of every member). The lead is the current box holding most lane
         lidar points."""
         if self.assoc is None:
-            prev, curr, lane, obj = self.prev, self.curr, self.lane, self.obj
+            lane, obj, velo_to_image = self.lane, self.obj, self.calib.velo_to_image
 
-            def associate():
-                uv = {
-                    i: project_to_image(lane[i]["points"][:, :3], self.calib.velo_to_image)
-                    for i in (prev, curr)
+            def associate() -> dict[int, LeadAssociation]:
+                return {
+                    i: associate_lead(
+                        lane[i]["points"], velo_to_image, obj[i]["roi"], s.lidar_shrink
+                    )
+                    for i in (self.prev, self.curr)
                 }
-                owners = {
-                    i: assign_points_to_boxes(uv[i], obj[i]["roi"], s.lidar_shrink) for i in uv
-                }
-                return uv, owners
 
-            (uv, owners), ms = _timed(associate)
-            self.assoc = (uv, owners, lead_box_of(owners[curr], len(obj[curr]["roi"])), ms)
+            found, ms = _timed(associate)
+            uv = {i: a.uv for i, a in found.items()}
+            owners = {i: a.owner for i, a in found.items()}
+            self.assoc = (uv, owners, found[self.curr].lead, ms)
         return self.assoc
 
     def _fp1(self, s: Settings, k: dict[str, str], selected: Any) -> tuple[Any, float]:

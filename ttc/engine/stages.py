@@ -50,7 +50,7 @@ from ttc.io.frames import (
     read_lidar_scan,
 )
 from ttc.plugins import USER, code_identity
-from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
+from ttc.settings import AXIS_BY_NAME, CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.lidar import crop_to_lane
 
 #: Version of each cached stage (:data:`ttc.settings.CACHED_STAGES`).
@@ -61,13 +61,15 @@ def _params(obj: Any) -> dict[str, Any]:
     return dataclasses.asdict(obj)
 
 
-def stage_params(params: Any) -> dict[str, Any]:
-    """The parameters of a detector, descriptor or matcher as they enter a cache key:
-    ``subpixel`` only when on (keys made before the option existed stay valid), and for a
-    ``custom`` stage the hash of the user's code (editing the function recomputes it)."""
+def stage_params(params: Any, axis: str) -> dict[str, Any]:
+    """The parameters of a detector, descriptor or matcher (``axis``) as they enter a cache
+    key: the axis's neutral options (:data:`ttc.settings.NEUTRAL_OPTIONS`, e.g. ``subpixel``)
+    only when on, so keys made before the option existed stay valid, and for a ``custom``
+    stage the hash of the user's code (editing the function recomputes it)."""
     out = _params(params)
-    if out.get("subpixel") is False:
-        del out["subpixel"]
+    for key, off in AXIS_BY_NAME[axis].neutral:
+        if key in out and type(out[key]) is type(off) and out[key] == off:
+            del out[key]
     if out.get("name") == USER:
         out["code"] = code_identity(out["target"])
     return out
@@ -175,7 +177,7 @@ class FrameStages:
         def compute() -> dict:
             return {"keypoints": detect_keypoints(self._gray(index), params)}
 
-        parts = lambda: (self._image_id(index), stage_params(params))  # noqa: E731
+        parts = lambda: (self._image_id(index), stage_params(params, "detector"))  # noqa: E731
         return self._task("keypoints", (index,), parts, compute)
 
     def descriptors(self, index: int) -> Task:
@@ -189,7 +191,7 @@ class FrameStages:
             kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
             return {"keypoints": kept, "descriptors": descriptors}
 
-        desc_key = _params(NO_DESCRIPTOR) if self.tracking else stage_params(desc)
+        desc_key = _params(NO_DESCRIPTOR) if self.tracking else stage_params(desc, "descriptor")
         parts = lambda: (upstream.key, desc_key)  # noqa: E731
         return self._task("descriptors", (index,), parts, compute)
 
@@ -205,7 +207,7 @@ class FrameStages:
             idx, dist = knn_candidates(d_prev, d_curr, self.binary, s.matcher)
             return {"idx": idx, "dist": dist}
 
-        parts = lambda: (up_prev.key, up_curr.key, stage_params(s.matcher))  # noqa: E731
+        parts = lambda: (up_prev.key, up_curr.key, stage_params(s.matcher, "matcher"))  # noqa: E731
         return self._task("matches", (prev, curr), parts, compute)
 
     def tracks(self, prev: int, curr: int) -> Task:

@@ -81,33 +81,30 @@ def assign_points_to_boxes(uv: np.ndarray, rois: np.ndarray, shrink: float = 0.1
 
 
 @dataclass(frozen=True)
-class BoxPoints:
-    """Lane lidar points of one frame and the box each belongs to (−1: none/ambiguous)."""
+class LeadAssociation:
+    """Lane lidar points of one frame associated with its boxes: pixel position ``uv``
+    (N × 2, px), ``owner`` box index per point (N,; −1: in no box or in two), and the
+    ``lead`` box (most points; −1: no box holds any)."""
 
-    points: np.ndarray  # (N, 4) x, y, z, reflectance in the lane
-    uv: np.ndarray  # (N, 2) pixels
-    box: np.ndarray  # (N,) box index or -1
+    uv: np.ndarray
+    owner: np.ndarray
+    lead: int
 
-    def of_box(self, box_index: int) -> np.ndarray:
-        """Points (K × 4) assigned to box ``box_index``."""
-        return self.points[self.box == box_index]
-
-    def counts(self, n_boxes: int) -> np.ndarray:
-        """Number of points per box (length ``n_boxes``)."""
-        return np.bincount(self.box[self.box >= 0], minlength=n_boxes)[:n_boxes]
+    def of_box(self, points: np.ndarray, box_index: int) -> np.ndarray:
+        """The rows of ``points`` (the N associated points) assigned to box ``box_index``."""
+        return points[self.owner == box_index]
 
 
-def associate_lidar(
-    points: np.ndarray,
-    velo_to_image: np.ndarray,
-    rois: np.ndarray,
-    crop: LaneCropParams,
-    shrink: float = 0.10,
-) -> BoxPoints:
-    """Crop a scan to the lane, project it and assign each point to a shrunk box."""
-    lane = crop_to_lane(points, crop)
-    uv = project_to_image(lane[:, :3], velo_to_image)
-    return BoxPoints(points=lane, uv=uv, box=assign_points_to_boxes(uv, rois, shrink))
+def associate_lead(
+    lane_points: np.ndarray, velo_to_image: np.ndarray, rois: np.ndarray, shrink: float = 0.10
+) -> LeadAssociation:
+    """Project lane points (N × ≥3, m, Velodyne frame) into the image (``velo_to_image``,
+    3 × 4), assign each to the box (``rois``: M × 4 x, y, w, h px, shrunk by ``shrink``, a
+    fraction) that alone holds it, and pick the lead box (:func:`lead_box_of`): the one
+    association step of runs, generated recordings and pictures."""
+    uv = project_to_image(lane_points[:, :3], velo_to_image)
+    owner = assign_points_to_boxes(uv, rois, shrink)
+    return LeadAssociation(uv=uv, owner=owner, lead=lead_box_of(owner, len(rois)))
 
 
 def lead_box_of(owner: np.ndarray, n_boxes: int) -> int:
