@@ -167,17 +167,11 @@ def summarise_sweep(
 
 def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
     """What ``experiments.report`` writes for this sweep, in a few words."""
-    from experiments.recordings import recording_of  # noqa: PLC0415
-    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+    from experiments.recordings import REPORT_CONTENTS, report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
-    ok = runs[runs["status"] == "ok"]
-    if ev.has_truth(frames):
-        return "truth.md, FP.6 against the truth, ranking with bootstrap intervals, HTML"
-    if recording_of(ok).nunique() > 1:
-        return "FP.5 / FP.6 per drive, drives.md ranked per drive and pooled, HTML"
-    fused = ", FP.7 fused TTC" if not fused_runs(ok).empty else ""
-    return f"FP.5, FP.6{fused}, ranking with bootstrap intervals, HTML"
+    fused = ", FP.7 fused TTC" if not fused_runs(runs[runs["status"] == "ok"]).empty else ""
+    return REPORT_CONTENTS[report_kind(frames, runs)].format(fused=fused)
 
 
 def _ranked(
@@ -195,7 +189,7 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list
     reference (pooled over the recordings of a sweep over several), none when no reference
     can be built; when the sweep is ranked on another sensor and holds runs with a fusion,
     also those runs ranked on the fused TTC."""
-    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+    from experiments.recordings import report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
     references = sweep_references(frames, runs, data_dir, cache_dir)
@@ -203,9 +197,11 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list
         return []
     ok = runs[runs["status"] == "ok"]
     sensor = ranked_sensor(ok)
-    against = "the exact truth" if ev.has_truth(frames) else "the reference"
-    if len(references) > 1:
-        against = f"its recording's reference, pooled over {len(references)} recordings"
+    against = {
+        "truth": "the exact truth",
+        "drives": f"its recording's reference, pooled over {len(references)} recordings",
+        "recording": "the reference",
+    }[report_kind(frames, runs)]
     rule = "(ttc.evaluation.RANKING_RULE)"
     tables = [(_ranked(frames, runs, references, sensor),
                f"on the {sensor} TTC against {against} {rule}")]  # fmt: skip

@@ -71,3 +71,23 @@ def runs_drive_rankings(
         sensor,
         ev.N_BOOT if n_boot is None else n_boot,
     )
+
+
+#: What ``experiments.report`` writes for each kind of sweep (:func:`report_kind`).
+REPORT_CONTENTS = {
+    "truth": "truth.md, FP.6 against the truth, ranking with bootstrap intervals, HTML",
+    "drives": "FP.5 / FP.6 per drive, drives.md ranked per drive and pooled, HTML",
+    "recording": "FP.5, FP.6{fused}, ranking with bootstrap intervals, HTML",
+}
+
+
+def report_kind(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
+    """Which report a sweep gets, the one rule of the report and the summary: ``truth`` for a
+    generated recording (judged against its exact truth), ``drives`` for the ok runs of
+    several recordings (per drive and pooled), else ``recording``."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+
+    if ev.has_truth(frames):
+        return "truth"
+    ok = runs[runs["status"] == "ok"]
+    return "drives" if recording_of(ok).nunique() > 1 else "recording"

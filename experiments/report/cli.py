@@ -14,6 +14,7 @@ import matplotlib
 
 from experiments import store
 from experiments.provenance import code_version
+from experiments.recordings import report_kind
 from experiments.report import drives, fp5, fp6, fp7, truth
 from experiments.report import reference as reference_writer
 from experiments.report.html import html_report
@@ -72,7 +73,8 @@ def build_report(
     data = load_sweeps(sweep_dirs)
     if data.runs.empty:
         raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
-    if ev.has_truth(data.frames):  # a generated recording: judged against its exact truth
+    kind = report_kind(data.frames, data.runs)
+    if kind == "truth":  # a generated recording: judged against its exact truth
         summary = truth.truth_report(data, out, list(real or []))
         ctx = make_context(data_dir, cache_dir)
         summary["fp6"] = fp6.fp6_report(data, summary["reference"], ctx, out, pictures,
@@ -88,7 +90,7 @@ def build_report(
     ctx = make_context(data_dir, cache_dir)
     out.mkdir(parents=True, exist_ok=True)
     lap("load")
-    if len(drives.split_by_recording(data)) > 1:
+    if kind == "drives":
         return build_drives_report(data, ctx, out, pictures, log, html)
     reference = reference_for(data, ctx)
     lap("reference")
