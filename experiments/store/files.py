@@ -1,0 +1,150 @@
+"""The files of a sweep folder: their names, the atomic writers of rows and records, and the
+checked readers (:class:`StoreError` names a damaged file)."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from ttc.atomic import atomic_write, write_bytes_atomic
+
+RUNS_DIR = "runs"
+FRAMES_FILE = "frames.parquet"
+RUNS_FILE = "runs.parquet"
+COMPLETE_STATUSES = ("ok", "skipped")
+#: :func:`incomplete_reason` of a run never computed in this sweep folder.
+NO_RECORD = "no record"
+#: Parquet schema-metadata key of the merged files: the digest of the records merged.
+DIGEST_KEY = b"ttc_merge_digest"
+
+
+class StoreError(RuntimeError):
+    """A file of the results store is unreadable or inconsistent; ``path`` names it."""
+
+    def __init__(self, path: Path | str, problem: str) -> None:
+        self.path = Path(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+def parquet_bytes(df: pd.DataFrame, metadata: dict[bytes, bytes] | None = None) -> bytes:
+    """``df`` as parquet file bytes (no index), with extra schema ``metadata``."""
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    if metadata:
+        table = table.replace_schema_metadata({**(table.schema.metadata or {}), **metadata})
+    sink = io.BytesIO()
+    pq.write_table(table, sink)
+    return sink.getvalue()
+
+
+def write_parquet_atomic(df: pd.DataFrame, path: Path, metadata: dict | None = None) -> str:
+    """Write ``df`` to ``path`` as parquet, atomically; return the file's SHA-256."""
+    data = parquet_bytes(df, metadata)
+    write_bytes_atomic(data, path)
+    return hashlib.sha256(data).hexdigest()
+
+
+def write_json_atomic(obj: Any, path: Path, indent: int | None = 1) -> None:
+    """Write ``obj`` to ``path`` as JSON, atomically (``indent=None``: one line, written
+    several times faster: records of batches and plans)."""
+    text = json.dumps(obj, indent=indent, default=str)
+    atomic_write(path, lambda tmp: tmp.write_text(text))
+
+
+def run_paths(sweep_dir: Path, run_id: str) -> tuple[Path, Path]:
+    """(rows parquet of a run computed alone, record json) of one run."""
+    base = Path(sweep_dir) / RUNS_DIR
+    return base / f"{run_id}.parquet", base / f"{run_id}.json"
+
+
+def rows_path(sweep_dir: Path, record: dict[str, Any]) -> Path:
+    """The rows file a record points to: its batch's (``rows_file``) or its own."""
+    name = record.get("rows_file") or f"{record['run_id']}.parquet"
+    return Path(sweep_dir) / RUNS_DIR / name
+
+
+def read_record(sweep_dir: Path, run_id: str) -> dict[str, Any] | None:
+    """The record of a run, or None when absent or unreadable."""
+    _, record_path = run_paths(sweep_dir, run_id)
+    try:
+        return json.loads(record_path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def read_rows(sweep_dir: Path, record: dict[str, Any]) -> pd.DataFrame:
+    """The rows of an ``ok`` run, checked against its record (SHA-256 of its rows file when
+    recorded, row count); :class:`StoreError` naming the file when missing, corrupt or
+    inconsistent. A batch's rows file is read whole and cut to the run's rows."""
+    path = rows_path(sweep_dir, record)
+    rows = read_checked(path, record.get("rows_sha256"))
+    if record.get("rows_file"):
+        rows = rows[rows["run_id"] == record["run_id"]].reset_index(drop=True)
+    if len(rows) != record.get("n_rows", len(rows)):
+        raise StoreError(path, f"{len(rows)} rows, its record says {record['n_rows']}")
+    return rows
+
+
+def read_checked(path: Path, sha256: str | None) -> pd.DataFrame:
+    """A rows file, its SHA-256 checked when given; :class:`StoreError` naming it."""
+    return read_checked_table(path, sha256).to_pandas()
+
+
+def read_checked_table(path: Path, sha256: str | None) -> pa.Table:
+    """:func:`read_checked` as an Arrow table (as stored: no pandas round trip)."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise StoreError(path, f"rows file unreadable ({exc.strerror})") from None
+    if sha256 and hashlib.sha256(data).hexdigest() != sha256:
+        raise StoreError(path, "rows file corrupt (SHA-256 differs from its record)")
+    try:
+        return pq.read_table(pa.BufferReader(data))
+    except Exception as exc:  # pyarrow raises many types for damaged files
+        raise StoreError(path, f"rows file corrupt ({type(exc).__name__}: {exc})") from None
+
+
+def save_run(sweep_dir: Path, record: dict[str, Any], rows: pd.DataFrame | None) -> None:
+    """Store a run: rows first (their SHA-256 goes into the record), then the record that
+    marks it complete."""
+    own_rows, record_path = run_paths(sweep_dir, record["run_id"])
+    if rows is not None:
+        record["rows_sha256"] = write_parquet_atomic(rows, own_rows)
+    write_json_atomic(record, record_path)
+
+
+def save_batch(
+    sweep_dir: Path, batch_id: str, records: list[dict[str, Any]], rows: pd.DataFrame
+) -> None:
+    """Store the runs of a batch: the rows of its ``ok`` runs in one file first, named
+    ``<batch_id>-<first 12 hex digits of its SHA-256>.parquet`` (a later re-run of some of the
+    batch's runs writes a new file and never touches the one other records point to), then
+    each run's record with ``rows_file``, ``rows_sha256`` and ``n_rows``. Rows are stored in
+    run id order (a stable sort: each run's rows keep theirs), the merged file's order."""
+    if len(rows):
+        data = parquet_bytes(rows.sort_values("run_id", kind="stable", ignore_index=True))
+        sha = hashlib.sha256(data).hexdigest()
+        name = f"{batch_id}-{sha[:12]}.parquet"
+        write_bytes_atomic(data, Path(sweep_dir) / RUNS_DIR / name)
+        for record in records:
+            if record.get("status") == "ok":
+                record.update(rows_file=name, rows_sha256=sha)
+    for record in records:
+        write_json_atomic(record, run_paths(sweep_dir, record["run_id"])[1], indent=None)
+
+
+def list_records(sweep_dir: Path) -> list[dict[str, Any]]:
+    """Every readable run record of a sweep, sorted by run id."""
+    records = []
+    for path in sorted((Path(sweep_dir) / RUNS_DIR).glob("*.json"), key=lambda p: p.name):
+        with contextlib.suppress(ValueError, OSError):
+            records.append(json.loads(path.read_text()))
+    return records
