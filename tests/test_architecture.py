@@ -139,3 +139,12 @@ def test_no_source_file_is_a_grab_bag() -> None:
         if (n := len(path.read_text().splitlines())) > MAX_LINES
     }
     assert long == {}
+
+
+def test_no_base_name_in_two_layers() -> None:
+    """A module name means one thing: the core and the wiring do not share file names."""
+    layers: dict[str, set[str]] = {}
+    for name, path in _modules().items():
+        if path.name != "__init__.py":
+            layers.setdefault(path.stem, set()).add(name.split(".")[0])
+    assert {stem: sorted(found) for stem, found in layers.items() if len(found) > 1} == {}

@@ -257,9 +257,9 @@ def test_small_sweep_outputs_carry_the_truth(tmp_path):
     worst = way_off.loc[way_off["camera_rel_err"].fillna(np.inf).idxmax()]
     assert drawn[0].stem.endswith(f"frame_{int(worst['frame']):04d}")
     html = tmp_path / "report" / "html"  # the HTML report, the truth as its reference page
-    truth_page = (html / "reference.html").read_text()
-    assert "Kendall&#x27;s tau" in truth_page or "Kendall's tau" in truth_page
-    assert 'href="fp6.html"' in truth_page and "fp6_camera.md" not in truth_page
+    truth_report = (html / "reference.html").read_text()
+    assert "Kendall&#x27;s tau" in truth_report or "Kendall's tau" in truth_report
+    assert 'href="fp6.html"' in truth_report and "fp6_camera.md" not in truth_report
     for name in ("index.html", "fp6.html", "fp5.html", "fp7.html"):
         assert (html / name).is_file(), name
     assert len(list((html / "settings").glob("*.html"))) == 1

@@ -15,8 +15,7 @@ import matplotlib
 from experiments import store
 from experiments.provenance import code_version
 from experiments.recordings import report_kind
-from experiments.report import drives, fp5, fp6, fp7, truth
-from experiments.report import reference as reference_writer
+from experiments.report import drives_report, fp5, fp6, fp7, reference_report, truth_report
 from experiments.report.html import html_report
 from experiments.report.load import (
     Context,
@@ -31,7 +30,7 @@ from ttc import evaluation as ev
 def write_sweep_metrics(data: SweepData, reference) -> list[Path]:
     """``metrics.parquet`` beside each sweep (its own runs, :func:`ttc.evaluation.sweep_metrics`;
     ``reference`` a dict drive name → reference for sweeps over several drives, each run
-    against its own drive's, :func:`experiments.report.drives.sweep_metrics_by_drive`)."""
+    against its own drive's, :func:`experiments.report.drives_report.sweep_metrics_by_drive`)."""
     written = []
     for d in data.dirs:
         runs = data.runs[data.runs["sweep_dir"] == str(d.resolve())]
@@ -40,7 +39,7 @@ def write_sweep_metrics(data: SweepData, reference) -> list[Path]:
         frames = data.frames[data.frames["run_id"].isin(runs["run_id"])]
         path = d / "metrics.parquet"
         if isinstance(reference, dict):
-            table = drives.sweep_metrics_by_drive(frames, runs, reference)
+            table = drives_report.sweep_metrics_by_drive(frames, runs, reference)
         else:
             table = ev.sweep_metrics(frames, runs, reference)
         store.write_parquet_atomic(table, path)
@@ -75,7 +74,7 @@ def build_report(
         raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
     kind = report_kind(data.frames, data.runs)
     if kind == "truth":  # a generated recording: judged against its exact truth
-        summary = truth.truth_report(data, out, list(real or []))
+        summary = truth_report.truth_report(data, out, list(real or []))
         ctx = make_context(data_dir, cache_dir)
         summary["fp6"] = fp6.fp6_report(data, summary["reference"], ctx, out, pictures,
                                         against=fp6.AGAINST_TRUTH)  # fmt: skip
@@ -96,7 +95,7 @@ def build_report(
     lap("reference")
     written = write_sweep_metrics(data, reference)
     lap("metrics")
-    reference_writer.reference_report(data, reference, out)
+    reference_report.reference_report(data, reference, out)
     lap("reference report")
     has_rows = not data.frames.empty
     fp5_table = fp5.fp5_report(data, reference, ctx, out, pictures) if has_rows else None
@@ -130,15 +129,15 @@ def build_drives_report(
 ) -> dict[str, Any]:
     """:func:`build_report` of sweeps over several drives: metrics beside each sweep (each
     run against its drive's reference), the reference, FP.5, FP.6 (and HTML) reports of each
-    drive in ``out/<drive>/``, and the per-drive and pooled rankings in ``out/drives.md``
-    (:mod:`experiments.report.drives`)."""
+    drive in ``out/<drive>/``, and the per-drive and pooled rankings in ``out/drives_report.md``
+    (:mod:`experiments.report.drives_report`)."""
     start = time.perf_counter()
-    references = drives.drive_references(data, ctx)
+    references = drives_report.drive_references(data, ctx)
     written = write_sweep_metrics(data, references)
-    for name, part in drives.split_by_recording(data).items():
+    for name, part in drives_report.split_by_recording(data).items():
         folder, reference = out / name, references[name]
         folder.mkdir(parents=True, exist_ok=True)
-        reference_writer.reference_report(part, reference, folder)
+        reference_report.reference_report(part, reference, folder)
         if part.frames.empty:
             continue
         fp5_table = fp5.fp5_report(part, reference, ctx, folder, pictures)
@@ -146,9 +145,9 @@ def build_drives_report(
         fp7_tables = fp7.fp7_report(part, reference, folder)
         if html:
             html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables)
-    table = drives.drives_report(data, references, out) if not data.frames.empty else None
+    table = drives_report.drives_report(data, references, out) if not data.frames.empty else None
     log(f"metrics: {', '.join(map(str, written))}")
-    log(f"reports: {out}/drives.md and one folder per drive ({', '.join(references)})")
+    log(f"reports: {out}/drives_report.md and one folder per drive ({', '.join(references)})")
     return {"metrics": written, "out": out, "drives": table, "pair_details": ctx.calls,
             "times": {"total": time.perf_counter() - start}}  # fmt: skip
 

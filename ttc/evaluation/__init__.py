@@ -13,7 +13,7 @@ submodules are the stages of judging:
 - :mod:`~ttc.evaluation.ranking`: the ranking rule;
 - :mod:`~ttc.evaluation.bootstrap`: rank intervals from a moving-block bootstrap;
 - :mod:`~ttc.evaluation.drives`: several drives in one sweep, per drive and pooled;
-- :mod:`~ttc.evaluation.compare`: one setting in two sweeps;
+- :mod:`~ttc.evaluation.run_comparison`: one setting in two sweeps;
 - :mod:`~ttc.evaluation.lead_status`: frames without one lead vehicle to judge against
   (``no_lead``, ``lead_change``), which split the reference into segments;
 - :mod:`~ttc.evaluation.truth`: judging a generated recording against its exact truth, per
@@ -62,7 +62,6 @@ from ttc.evaluation.camera_diagnosis import (
     with_geometry_reasons,
     worst_order,
 )
-from ttc.evaluation.compare import COMPARED_METRICS, compare_runs
 from ttc.evaluation.diagnosis import (
     CAMERA_AXES,
     combine_reasons,
@@ -146,6 +145,7 @@ from ttc.evaluation.reference import (
     reference_for_sequence,
     reference_ttc,
 )
+from ttc.evaluation.run_comparison import COMPARED_METRICS, compare_runs
 from ttc.evaluation.truth import (
     ALL_TARGETS,
     TRUTH_METRICS,

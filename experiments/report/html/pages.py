@@ -11,8 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.report import fp5, fp6, fp7
-from experiments.report import reference as reference_writer
+from experiments.report import fp5, fp6, fp7, reference_report
 from experiments.report.header import provenance_markdown
 from experiments.report.html.page import (
     esc,
@@ -338,7 +337,7 @@ def reference_page(provenance: str, reference: pd.DataFrame, figures: dict[str, 
         titled("Reference TTC", provenance),
         f"<p>{inline(ev.REFERENCE_SUMMARY)}</p>",
         "<ul>"
-        + "".join(f"<li>{inline(f)}</li>" for f in reference_writer._facts(reference))
+        + "".join(f"<li>{inline(f)}</li>" for f in reference_report.reference_facts(reference))
         + "</ul>",
         f"<p><strong>Caveats.</strong> {inline(ev.REFERENCE_CAVEATS)}</p>",
         _figure(figures.get("reference.png"), "reference"),

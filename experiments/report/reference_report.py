@@ -15,7 +15,7 @@ from experiments.report.plots import plot_reference, save_figure
 from ttc import evaluation as ev
 
 
-def _facts(reference: pd.DataFrame) -> list[str]:
+def reference_facts(reference: pd.DataFrame) -> list[str]:
     """Sentences a reader can check in ``reference.csv``: the stop, the noise, the regimes and
     the frames too uncertain to judge a TTC on."""
     regimes = reference["regime"].iloc[1:].value_counts()
@@ -51,7 +51,7 @@ def reference_report(data: SweepData, reference: pd.DataFrame, out: Path) -> Non
         provenance_markdown(data, "Reference TTC"),
         ev.REFERENCE_SUMMARY,
         "",
-        *[f"- {fact}" for fact in _facts(reference)],
+        *[f"- {fact}" for fact in reference_facts(reference)],
         "",
         f"**Caveats.** {ev.REFERENCE_CAVEATS}",
         "",
