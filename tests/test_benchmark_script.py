@@ -25,8 +25,15 @@ def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
     report = json.loads(out.read_text())
     for key in ("cold_s", "floor_s", "floor_unique_s", "cold_over_floor", "nocache_s",
                 "nocache_over_cold", "warm_filter_s", "peak_rss_mb", "git_commit", "versions",
-                "cold_over_floor_unique", "rerun_s", "small_cold_s", "small_rerun_s"):  # fmt: skip
+                "cold_over_floor_unique", "rerun_s", "small_cold_s", "small_rerun_s",
+                "floor_engine_s", "cold_over_floor_engine", "cold_fixed_s",
+                "warm_filter_fixed_s"):  # fmt: skip
         assert key in report, key
+    steps = report["floor_ms_by_stage"]["steps"]
+    assert 0 < steps < 1e3 * report["cold_s"]  # FP.1-FP.4 once, a part of the cold sweep
+    assert report["floor_engine_s"] > report["floor_unique_s"]
+    breakdown = report["warm_filter_breakdown"]
+    assert report["warm_filter_fixed_s"] == breakdown["lead_in_s"] + breakdown["tail_s"] > 0
     assert report["small_settings"] == 8
     assert report["missing"] == ["grand_cold_s", "grand_warm_s", "grand_peak_rss_mb",
                                  "grand_peak_pss_mb", "grand_report_s",
