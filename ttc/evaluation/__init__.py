@@ -16,6 +16,8 @@ submodules are the stages of judging:
 - :mod:`~ttc.evaluation.run_comparison`: one setting in two sweeps;
 - :mod:`~ttc.evaluation.lead_status`: frames without one lead vehicle to judge against
   (``no_lead``, ``lead_change``), which split the reference into segments;
+- :mod:`~ttc.evaluation.ttc_bins`: metrics per reference-TTC range (< 6, 6–12, 12–24,
+  > 24 s) and the false alarms of a recording without a lead vehicle;
 - :mod:`~ttc.evaluation.truth`: judging a generated recording against its exact truth, per
   target TTC, and its ranking's agreement with a real sequence's;
 - :mod:`~ttc.evaluation.lead`: which box is the lead vehicle's (one rule for tables and
@@ -155,8 +157,22 @@ from ttc.evaluation.truth import (
     truth_metrics,
     truth_reference,
 )
+from ttc.evaluation.ttc_bins import (
+    TTC_BIN_EDGES_S,
+    TTC_BINS,
+    binned_metrics,
+    no_lead_pairs,
+    no_lead_reports,
+    ttc_bin,
+)
 
 __all__ = [
+    "TTC_BIN_EDGES_S",
+    "TTC_BINS",
+    "binned_metrics",
+    "no_lead_pairs",
+    "no_lead_reports",
+    "ttc_bin",
     "CACHED_STAGE_INPUTS",
     "COMPARED_METRICS",
     "FALSE_ALARM_S",

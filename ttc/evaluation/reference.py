@@ -275,7 +275,15 @@ def _segmented_reference(
     for flag in ("distance_interpolated", "collision_course", "judgeable"):
         out[flag] = out[flag].fillna(False).astype(bool) if flag in out else False
     out["regime"] = out["regime"].fillna("") if "regime" in out else ""
+    for column in NUMERIC_COLUMNS:  # a recording without any lead vehicle: no part at all
+        if column not in out:
+            out[column] = np.nan
     return out
+
+
+#: Numeric columns of a reference (NaN on the frames of no lead segment).
+NUMERIC_COLUMNS = ("distance_smooth_m", "distance_sd_m", "closing_speed_mps", "ratio_ref",
+                   "ttc_ref_s", "mid_ref_sd", "ttc_ref_sd_s", "noise_sd_m")  # fmt: skip
 
 
 def _segment_reference(
