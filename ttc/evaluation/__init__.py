@@ -16,6 +16,8 @@ submodules are the stages of judging:
 - :mod:`~ttc.evaluation.run_comparison`: one setting in two sweeps;
 - :mod:`~ttc.evaluation.lead_status`: frames without one lead vehicle to judge against
   (``no_lead``, ``lead_change``), which split the reference into segments;
+- :mod:`~ttc.evaluation.transfer`: how far a ranking carries from one recording to another
+  (Kendall's τ, the best of one on the others, the top everywhere);
 - :mod:`~ttc.evaluation.ttc_bins`: metrics per reference-TTC range (< 6, 6–12, 12–24,
   > 24 s) and the false alarms of a recording without a lead vehicle;
 - :mod:`~ttc.evaluation.truth`: judging a generated recording against its exact truth, per
@@ -148,6 +150,12 @@ from ttc.evaluation.reference import (
     reference_ttc,
 )
 from ttc.evaluation.run_comparison import COMPARED_METRICS, compare_runs
+from ttc.evaluation.transfer import (
+    best_elsewhere,
+    recording_agreement,
+    top_everywhere,
+    transfer_sentence,
+)
 from ttc.evaluation.truth import (
     ALL_TARGETS,
     TRUTH_METRICS,
@@ -167,6 +175,10 @@ from ttc.evaluation.ttc_bins import (
 )
 
 __all__ = [
+    "best_elsewhere",
+    "recording_agreement",
+    "top_everywhere",
+    "transfer_sentence",
     "TTC_BIN_EDGES_S",
     "TTC_BINS",
     "binned_metrics",

@@ -1,0 +1,56 @@
+"""How far a ranking carries between recordings (ttc.evaluation.transfer), on constructed
+rankings with known answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ttc.evaluation.transfer import (
+    best_elsewhere,
+    recording_agreement,
+    top_everywhere,
+    transfer_sentence,
+)
+
+KEY = "camera_mid_median"
+
+
+def _table() -> pd.DataFrame:
+    """Settings s0..s5 on three drives: B ranks them as A does, C in reverse; D judged
+    nothing (a drive without a lead); pooled rows are ignored."""
+    rows = []
+    settings = [f"s{i}" for i in range(6)]
+    for drive, order in (("A", settings), ("B", settings), ("C", settings[::-1])):
+        for rank, s in enumerate(order, start=1):
+            rows.append({"drive": drive, "setting": s, "rank": rank, KEY: float(rank)})
+    rows += [{"drive": "D", "setting": s, "rank": 1, KEY: np.nan} for s in settings]
+    rows += [{"drive": "pooled", "setting": s, "rank": 1, KEY: 1.0} for s in settings]
+    return pd.DataFrame(rows)
+
+
+def test_kendall_tau_between_each_pair_of_ranked_drives() -> None:
+    out = recording_agreement(_table(), KEY).set_index(["drive_a", "drive_b"])
+    assert list(out.index) == [("A", "B"), ("A", "C"), ("B", "C")]
+    assert out.loc[("A", "B"), "kendall_tau"] == pytest.approx(1.0)
+    assert out.loc[("A", "C"), "kendall_tau"] == pytest.approx(-1.0)
+    assert (out["n_settings"] == 6).all()
+
+
+def test_best_on_one_drive_and_their_ranks_elsewhere() -> None:
+    out = best_elsewhere(_table(), KEY, k=2)
+    a = out[out["best_on"] == "A"]
+    assert a["setting"].tolist() == ["s0", "s1"]
+    assert a["C"].tolist() == [6, 5] and a["B"].tolist() == [1, 2]
+    assert (out["n_C"] == 6).all() and "D" not in out
+
+
+def test_top_everywhere_and_the_sentence() -> None:
+    table = _table()
+    assert top_everywhere(table, KEY, k=3) == []
+    assert top_everywhere(table, KEY, k=6) == [f"s{i}" for i in range(6)]
+    sentence = transfer_sentence(table, KEY, k=3)
+    assert sentence.startswith("Kendall's τ between the recordings' rankings is -1.00–1.00;")
+    assert "A's best (s0) ranks 1 of 6 on B, 6 of 6 on C" in sentence
+    assert sentence.endswith("0 setting(s) are in the top 3 on every recording.")
