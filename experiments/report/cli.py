@@ -129,7 +129,7 @@ def build_drives_report(
 ) -> dict[str, Any]:
     """:func:`build_report` of sweeps over several drives: metrics beside each sweep (each
     run against its drive's reference), the reference, FP.5, FP.6 (and HTML) reports of each
-    drive in ``out/<drive>/``, and the per-drive and pooled rankings in ``out/drives_report.md``
+    drive in ``out/<drive>/``, and the per-drive and pooled rankings in ``out/drives.md``
     (:mod:`experiments.report.drives_report`)."""
     start = time.perf_counter()
     references = drives_report.drive_references(data, ctx)
@@ -147,7 +147,7 @@ def build_drives_report(
             html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables)
     table = drives_report.drives_report(data, references, out) if not data.frames.empty else None
     log(f"metrics: {', '.join(map(str, written))}")
-    log(f"reports: {out}/drives_report.md and one folder per drive ({', '.join(references)})")
+    log(f"reports: {out}/drives.md and one folder per drive ({', '.join(references)})")
     return {"metrics": written, "out": out, "drives": table, "pair_details": ctx.calls,
             "times": {"total": time.perf_counter() - start}}  # fmt: skip
 
