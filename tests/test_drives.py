@@ -139,3 +139,32 @@ def test_without_a_reference_the_summary_ranks_nothing_and_says_why(
     assert table.empty
     assert "no ranking: no reference TTC to judge against" in printed
     assert "best " not in printed and "sweep dataset:" in printed
+
+
+@pytest.mark.slow  # uses the two-drive sweep above
+def test_the_cross_recording_page(two_drive_sweep, tmp_path) -> None:
+    """recordings.md / .csv / html: each setting's rank per recording equals the drives
+    ranking's, Kendall's tau between the two drives' rankings is the one of those ranks."""
+    from scipy.stats import kendalltau
+
+    sweep_dir, root = two_drive_sweep
+    summary = build_report([sweep_dir], tmp_path, root, sweep_dir.parent.parent / "cache",
+                           pictures=False, html=False, log=lambda _: None)  # fmt: skip
+    table = pd.read_csv(tmp_path / "drives_ranking.csv")
+    wide = pd.read_csv(tmp_path / "recordings.csv")
+    for sensor in ("camera", "lidar"):
+        mine = table[(table["sensor"] == sensor) & (table["drive"] != ev.POOLED)]
+        ranks = mine.pivot(index="setting", columns="drive", values="rank")
+        got = wide[wide["sensor"] == sensor].set_index("lidar_ttc")
+        ranks = ranks.rename(
+            index=mine.drop_duplicates("setting").set_index("setting")["lidar_ttc"]
+        )
+        for name in NAMES:
+            assert got[f"rank_{name}"].to_dict() == ranks[name].to_dict()
+        tau = kendalltau(ranks[NAMES[1]], ranks[NAMES[0]]).statistic
+        text = (tmp_path / "recordings.md").read_text()
+        assert f"| {NAMES[0]} | {NAMES[1]} | 2 | {tau:.3g} |" in text
+    assert summary["recordings"].startswith("Kendall's τ between the recordings' rankings is")
+    assert "best (median)" in summary["recordings"] or "best (closest)" in summary["recordings"]
+    assert "## false alarms without a lead vehicle" in text
+    assert (tmp_path / "html" / "recordings.html").is_file()

@@ -15,7 +15,15 @@ import matplotlib
 from experiments import store
 from experiments.provenance import code_version
 from experiments.recordings import report_kind
-from experiments.report import drives_report, fp5, fp6, fp7, reference_report, truth_report
+from experiments.report import (
+    drives_report,
+    fp5,
+    fp6,
+    fp7,
+    recordings_report,
+    reference_report,
+    truth_report,
+)
 from experiments.report.html import html_report
 from experiments.report.load import (
     Context,
@@ -146,9 +154,16 @@ def build_drives_report(
         if html:
             html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables)
     table = drives_report.drives_report(data, references, out) if not data.frames.empty else None
+    finding = None
+    if table is not None:
+        finding = recordings_report.recordings_report(data, references, table, out)
     log(f"metrics: {', '.join(map(str, written))}")
-    log(f"reports: {out}/drives.md and one folder per drive ({', '.join(references)})")
-    return {"metrics": written, "out": out, "drives": table, "pair_details": ctx.calls,
+    log(f"reports: {out}/drives.md, {out}/recordings.md and one folder per drive "
+        f"({', '.join(references)})")  # fmt: skip
+    if finding:
+        log(finding)
+    return {"metrics": written, "out": out, "drives": table, "recordings": finding,
+            "pair_details": ctx.calls,
             "times": {"total": time.perf_counter() - start}}  # fmt: skip
 
 

@@ -39,14 +39,14 @@ def _ranks(table: pd.DataFrame, key: str) -> pd.DataFrame:
 
 def recording_agreement(table: pd.DataFrame, key: str) -> pd.DataFrame:
     """Per pair of ranked drives: ``drive_a``, ``drive_b``, ``n_settings`` (ranked on both)
-    and ``kendall_tau`` (NaN with fewer than 3 settings)."""
+    and ``kendall_tau`` (NaN with fewer than 2 settings)."""
     from scipy.stats import kendalltau  # noqa: PLC0415 (slow to import)
 
     ranks = _ranks(table, key)
     rows = []
     for a, b in itertools.combinations(ranks.columns, 2):
         both = ranks[[a, b]].dropna()
-        tau = kendalltau(both[a], both[b]).statistic if len(both) >= 3 else np.nan
+        tau = kendalltau(both[a], both[b]).statistic if len(both) >= 2 else np.nan
         rows.append({"drive_a": a, "drive_b": b, "n_settings": len(both),
                      "kendall_tau": float(tau)})  # fmt: skip
     return pd.DataFrame(rows, columns=["drive_a", "drive_b", "n_settings", "kendall_tau"])

@@ -1,0 +1,163 @@
+"""The cross-recording page of a sweep over several recordings: ``recordings.md``,
+``recordings.csv`` and ``html/recordings.html``.
+
+From the per-drive and pooled rankings (:func:`experiments.report.drives_report.drives_report`)
+it writes, per sensor: each setting's rank and median motion-in-depth error per recording and
+pooled, Kendall's τ between every pair of recordings' rankings, the best 5 settings of each
+recording with their ranks on the others and the settings in the top 10 everywhere
+(:mod:`ttc.evaluation.transfer`); and, for the recordings with frame pairs without a vehicle
+ahead, the false alarms of every setting there (:func:`ttc.evaluation.no_lead_reports`), also
+summed per detector.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from experiments.recordings import drive_name, recording_of
+from experiments.report.encode import markdown_table, write_csv, write_text
+from experiments.report.header import provenance_markdown
+from experiments.report.html.page import markdown_html, page, write_assets
+from experiments.report.load import SweepData
+from ttc import evaluation as ev
+from ttc.settings import AXES
+
+SENSORS = ("camera", "lidar")
+#: How many of each recording's best settings are followed onto the others.
+BEST = 5
+#: The top every recording must rank a setting in to be "in the top everywhere".
+TOP = 10
+
+
+def wide_ranks(table: pd.DataFrame, sensor: str) -> pd.DataFrame:
+    """Setting × (drive, rank / median MiD) of one sensor of :func:`drives_report`'s table:
+    one row per setting with its axes, ``rank_<drive>`` and ``mid_<drive>`` columns."""
+    key = f"{sensor}_mid_median"
+    part = table[table["sensor"] == sensor]
+    drives = list(dict.fromkeys(part["drive"]))
+    pooled = part[part["drive"] == ev.POOLED].set_index("setting")
+    axes = [c for c in ("detector", "descriptor", "matcher", "selector", "lidar_ttc") if c in part]
+    first = part.drop_duplicates("setting").set_index("setting")[axes]
+    out = first.copy()
+    for drive in drives:
+        mine = part[part["drive"] == drive].set_index("setting")
+        out[f"rank_{drive}"] = mine["rank"]
+        out[f"mid_{drive}"] = mine[key]
+    out = out.reset_index().assign(sensor=sensor)
+    order = pooled["rank"].reindex(out["setting"]).to_numpy()
+    return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order")
+
+
+def false_alarms(data: SweepData, references: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """Per run on a recording with frame pairs without a vehicle ahead: its drive, axes and
+    :func:`ttc.evaluation.no_lead_reports` (empty when no recording has such pairs)."""
+    ok = data.runs[data.runs["status"] == "ok"]
+    drive = recording_of(ok).map(drive_name)
+    lead = ev.lead_rows(data.frames[data.frames["run_id"].isin(ok["run_id"])])
+    parts = []
+    for name, reference in references.items():
+        mine = lead[lead["run_id"].map(drive) == name]
+        counts = ev.no_lead_reports(mine, reference)
+        if not mine.empty and counts["n_no_lead"].sum() > 0:
+            parts.append(counts.assign(drive=name))
+    if not parts:
+        return pd.DataFrame()
+    counts = pd.concat(parts, ignore_index=True)
+    axes = ok.set_index("run_id")[["detector", "descriptor", "matcher", "selector"]]
+    return counts.join(axes, on="run_id")
+
+
+def with_labels(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with ``setting`` replaced by a readable label: the values of the axes that
+    vary among its settings joined by ``/`` (the id when none varies or labels collide)."""
+    axes = [a for a in AXES if a in table and table[a].nunique(dropna=False) > 1]
+    if not axes:
+        return table
+    label = table[axes].astype(str).agg("/".join, axis=1)
+    if label.groupby(table["setting"]).nunique().max() > 1 or (
+        table.assign(label=label).groupby("label")["setting"].nunique().max() > 1
+    ):
+        return table
+    return table.assign(setting=label)
+
+
+def recordings_report(
+    data: SweepData, references: dict[str, pd.DataFrame], table: pd.DataFrame, out: Path
+) -> str:
+    """Write ``recordings.md``, ``recordings.csv`` and ``html/recordings.html`` from the
+    drives report's ``table`` (settings named by :func:`with_labels`); return the
+    one-sentence finding on the camera ranking."""
+    table = with_labels(table)
+    wide = pd.concat([wide_ranks(table, s) for s in SENSORS], ignore_index=True)
+    write_csv(wide, out / "recordings.csv")
+    alarms = false_alarms(data, references)
+    if not alarms.empty:
+        write_csv(alarms, out / "recordings_false_alarms.csv")
+    finding = ev.transfer_sentence(table[table["sensor"] == "camera"], "camera_mid_median", TOP)
+    lines = [
+        provenance_markdown(data, "Across recordings: how far a ranking carries"),
+        f"Recordings: {', '.join(references)}; each setting ranked on each by "
+        "`ttc.evaluation.RANKING_RULE` against its own reference, and pooled (drives.md has the "
+        "intervals). A recording where no frame pair can be judged ranks nothing.",
+        "",
+        f"**Camera:** {finding}",
+        "",
+    ]
+    for sensor in SENSORS:
+        part = table[table["sensor"] == sensor]
+        key = f"{sensor}_mid_median"
+        lines += [f"## {sensor}", "", ev.transfer_sentence(part, key, TOP), "",
+                  "Kendall's τ between the recordings' rankings:", "",
+                  markdown_table(ev.recording_agreement(part, key)), "",
+                  f"The best {BEST} on one recording: their ranks on the others:", "",
+                  markdown_table(ev.best_elsewhere(part, key, BEST)), "",
+                  f"In the top {TOP} on every recording: "
+                  f"{', '.join(ev.top_everywhere(part, key, TOP)) or 'none'}", ""]  # fmt: skip
+    lines += _false_alarm_lines(alarms)
+    lines += ["## every setting: rank and median MiD per recording", "",
+              markdown_table(wide.drop(columns="sensor").head(40)),
+              "", "(all settings and sensors: recordings.csv)"]  # fmt: skip
+    text = "\n".join(lines) + "\n"
+    write_text(text, out / "recordings.md")
+    html = out / "html"
+    write_assets(html, write_text)
+    write_text(page("recordings", markdown_html(text), here="recordings.html"),
+               html / "recordings.html")  # fmt: skip
+    return finding
+
+
+def _false_alarm_lines(alarms: pd.DataFrame) -> list[str]:
+    """The false-alarm section: totals per drive and detector, then the worst settings."""
+    if alarms.empty:
+        return ["## false alarms without a lead vehicle", "",
+                "No recording of the sweep has frame pairs without a vehicle ahead.", ""]  # fmt: skip
+    counts = [c for c in alarms if c.endswith(("_reported", "_warnings"))]
+    per_detector = alarms.groupby(["drive", "detector"])[["n_no_lead", *counts]].sum()
+    worst = alarms.sort_values(counts[0], ascending=False).head(10)
+    return [
+        "## false alarms without a lead vehicle",
+        "",
+        "On frame pairs where the reference finds no vehicle ahead, any lead TTC reported is a "
+        f"false alarm (`_reported`), and a TTC below {ev.WARNING_TTC_S:g} s a false collision "
+        "warning (`_warnings`).",
+        "",
+        markdown_table(per_detector.reset_index()),
+        "",
+        markdown_table(
+            worst[
+                [
+                    "drive",
+                    "run_id",
+                    "detector",
+                    "descriptor",
+                    "matcher",
+                    "selector",
+                    "n_no_lead",
+                    *counts,
+                ]
+            ]
+        ),  # fmt: skip
+        "",
+    ]
