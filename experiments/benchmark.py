@@ -16,10 +16,8 @@ Figures (all wall-clock seconds on this machine, written to a JSON report):
   in this process, one OpenCV thread, like a sweep worker. ``floor_unique_s`` counts matching
   once per detector × descriptor × matcher, the work the harness really has to do because NN
   and kNN share one k=2 query; ``cold_over_floor_unique`` is the figure of issue #11;
-  ``floor_engine_s`` adds FP.1–FP.4 at their shared minimum (every setting of the grid in one
-  in-process batch over the warm cache, less its cache reads:
-  :func:`experiments.floor.steps_floor_ms`), so ``cold_over_floor_engine`` measures only the
-  harness's overhead (issue #21);
+  ``floor_engine_s`` adds FP.1–FP.4 at their shared minimum
+  (:func:`experiments.floor.steps_floor_ms`): ``cold_over_floor_engine`` is the overhead;
 * ``cold_fixed_s`` / ``warm_filter_fixed_s``: the time of a cold / warm sweep before its first
   job and after its last (start-up, planning, merge, summary: ``lead_in_s + tail_s`` of the
   breakdowns);
