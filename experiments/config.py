@@ -153,26 +153,58 @@ def _to_object(node: DictConfig, schema: type) -> Any:
     return schema(**OmegaConf.to_container(node, resolve=True))
 
 
+def _params(entry: dict[str, Any], schema: type) -> Any:
+    """The core parameter object of one resolved config entry."""
+    return schema(**entry)
+
+
+def _tracking(matcher: dict[str, Any]) -> bool:
+    """True for a tracking matcher (KLT): no descriptor, no selection."""
+    return matcher["name"] in TRACKERS
+
+
+def _descriptor(descriptor: dict[str, Any], matcher: dict[str, Any]) -> Any:
+    if _tracking(matcher):
+        return NO_DESCRIPTOR
+    return _params(descriptor, DESCRIPTORS[descriptor["name"]])
+
+
+def _selector(selector: dict[str, Any], matcher: dict[str, Any]) -> Any:
+    return NO_SELECTOR if _tracking(matcher) else _params(selector, SelectorParams)
+
+
+def _single(group: str) -> tuple[tuple[str, ...], Any]:
+    schema = SINGLE_CLASS_GROUPS[group]
+    return (group,), lambda entry: _params(entry, schema)
+
+
+#: Every field of the core's :class:`Settings`: the config entries it is made from (its
+#: converter gets exactly those, resolved, and nothing else) and the converter, in the order
+#: they are converted (the first bad value is the one reported).
+SETTINGS_FIELDS: dict[str, tuple[tuple[str, ...], Any]] = {
+    "matcher": (("matcher",), lambda m: _params(m, MATCHER_PARAMS[m["name"]])),
+    "selector": (("selector", "matcher"), _selector),
+    **{g: _single(g) for g in SINGLE_CLASS_GROUPS if g != "selector"},
+    "descriptor": (("descriptor", "matcher"), _descriptor),
+    "detector": (("detector",), lambda d: _params(d, DETECTORS[d["name"]])),
+    "lane": (("lidar",), lambda lidar: _params(lidar["crop"], LaneCropParams)),
+    "lidar_shrink": (("lidar",), lambda lidar: float(lidar["shrink"])),
+}
+
+
+def settings_field(name: str, entries: dict[str, Any]) -> Any:
+    """One field of the core's :class:`Settings` from the resolved config ``entries`` (a
+    :func:`setting_config` or any dict holding the field's entries; raises ValueError on a
+    bad value)."""
+    sources, convert = SETTINGS_FIELDS[name]
+    return convert(*(entries[key] for key in sources))
+
+
 def settings_from_config(cfg: DictConfig) -> Settings:
     """The core's :class:`Settings` for a composed config (raises ValueError on bad values)."""
-    matcher = _to_object(cfg.matcher, MATCHER_PARAMS[cfg.matcher.name])
-    tracking = matcher.name in TRACKERS  # KLT uses no descriptor and selects nothing
-    objects = {
-        g: NO_SELECTOR if tracking and g == "selector" else _to_object(cfg[g], schema)
-        for g, schema in SINGLE_CLASS_GROUPS.items()
-    }
-    if tracking:
-        descriptor = NO_DESCRIPTOR
-    else:
-        descriptor = _to_object(cfg.descriptor, DESCRIPTORS[cfg.descriptor.name])
-    return Settings(
-        detector=_to_object(cfg.detector, DETECTORS[cfg.detector.name]),
-        descriptor=descriptor,
-        matcher=matcher,
-        **objects,
-        lane=_to_object(cfg.lidar.crop, LaneCropParams),
-        lidar_shrink=float(cfg.lidar.shrink),
-    )
+    keys = {key for sources, _ in SETTINGS_FIELDS.values() for key in sources}
+    entries = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in keys}
+    return Settings(**{name: settings_field(name, entries) for name in SETTINGS_FIELDS})
 
 
 def data_root(cfg: DictConfig) -> Path:
@@ -227,15 +259,35 @@ def prepared_frame_range(cfg: DictConfig) -> FrameRange:
     return frame_range_from_config(cfg)
 
 
-def setting_config(cfg: DictConfig) -> dict[str, Any]:
-    """The part of the config that determines the numbers (no paths, no launcher)."""
-    setting = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in (*AXES, "lidar")}
-    setting["dataset"] = {k: v for k, v in setting["dataset"].items() if k != "root"}
-    setting["dataset"] = datasets.dataset_identity(setting["dataset"], sequence_dir(cfg))
-    if setting["matcher"]["name"] in TRACKERS:  # no descriptor, no selection: one run id
+#: The top-level config entries a setting is made of (:func:`setting_config`).
+SETTING_KEYS: tuple[str, ...] = (*AXES, "lidar")
+
+
+def setting_entry(cfg: DictConfig, key: str) -> Any:
+    """One entry of :func:`setting_config`, resolved from ``cfg[key]`` alone (the dataset
+    without its data root, named by :func:`experiments.datasets.dataset_identity`)."""
+    value = OmegaConf.to_container(cfg[key], resolve=True)
+    if key == "dataset":
+        recording = paths.resolve(value["root"]) / value["sequence"]
+        value = datasets.dataset_identity({k: v for k, v in value.items() if k != "root"},
+                                          recording)  # fmt: skip
+    return value
+
+
+def finish_setting(entries: dict[str, Any]) -> dict[str, Any]:
+    """The setting of the resolved :data:`SETTING_KEYS` entries: a tracking matcher (KLT)
+    uses no descriptor and selects nothing, so those two are recorded as ``none`` (one run
+    id). ``entries`` is not changed; untouched values are the same objects."""
+    setting = dict(entries)
+    if setting["matcher"]["name"] in TRACKERS:
         setting["descriptor"] = {"name": NO_DESCRIPTOR.name}
         setting["selector"] = {"name": NO_SELECTOR.name}
     return setting
+
+
+def setting_config(cfg: DictConfig) -> dict[str, Any]:
+    """The part of the config that determines the numbers (no paths, no launcher)."""
+    return finish_setting({key: setting_entry(cfg, key) for key in SETTING_KEYS})
 
 
 def axis_values(setting: dict[str, Any]) -> dict[str, str]:
@@ -297,10 +349,27 @@ def run_identity(setting: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def setting_hash(setting: dict[str, Any]) -> str:
-    """The run id of a :func:`setting_config` (16 hex digits of the SHA-256 of its
-    :func:`run_identity`'s canonical JSON)."""
-    text = json.dumps(run_identity(setting), sort_keys=True, separators=(",", ":"))
+def setting_hash(setting: dict[str, Any], memo: dict[int, tuple[Any, str]] | None = None) -> str:
+    """The run id of a :func:`setting_config`: 16 hex digits of the SHA-256 of its
+    :func:`run_identity`'s canonical JSON (sorted keys, no spaces).
+
+    ``memo`` (a dict the caller keeps for a sweep): the JSON of each top-level value is kept
+    there by object, so settings that share their values (a sweep's, from
+    :class:`experiments.sweep.compose.Composer`) write each value once; the text hashed is
+    the same."""
+    identity = run_identity(setting)
+    if memo is None:
+        text = json.dumps(identity, sort_keys=True, separators=(",", ":"))
+    else:
+        parts = []
+        for key in sorted(identity):
+            value = identity[key]
+            known = memo.get(id(value))
+            if known is None or known[0] is not value:
+                known = memo[id(value)] = (value, json.dumps(value, sort_keys=True,
+                                                             separators=(",", ":")))  # fmt: skip
+            parts.append(json.dumps(key) + ":" + known[1])
+        text = "{" + ",".join(parts) + "}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

@@ -1,0 +1,4 @@
+"""How a sweep runs: its jobs' configs and settings (:mod:`.compose`), the workers and the
+launcher that runs them (:mod:`.workers`, :mod:`.launcher`), the sweeper that validates and
+plans (:mod:`.sweeper`) and what Ctrl-C says (:mod:`.interrupt`). The Hydra plugins in
+``hydra_plugins/`` are thin shims over these modules."""

@@ -1,0 +1,354 @@
+"""The configs and settings of a sweep's jobs, from one Hydra composition per distinct option.
+
+Hydra composes a job's config from scratch (~0.13 s with this config tree), and a sweep's
+jobs differ from one another in a few ``key=value`` overrides. :class:`Composer` composes one
+*template* job (the first) and, for every other value at a position, one *variant* (the
+template with that one value), then derives every job from them:
+
+* a job's **config** (what the launcher's workers run) is the template's with the subtree of
+  each override that differs from the template replaced by its variant's, when that variant
+  is *local*: a plain change (``key=value``: no ``@package``, no addition or deletion) whose
+  composition differs from the template's only under ``key`` (and its choice in
+  ``hydra.runtime.choices``), interpolations unresolved; and when no two differing overrides
+  set overlapping keys (one under the other);
+* a job's **setting** (:func:`experiments.config.setting_config`, what the planner reads) is
+  made of its entries, each resolved once per distinct set of overrides it can depend on: the
+  differing overrides that set the entry itself or any top-level key its interpolations reach
+  (read from the template's and the variants' unresolved configs, transitively).
+
+Anything else (another number of overrides, another key at a position, a variant that is not
+local, overlapping keys) goes through Hydra's full composition. Resolvers are taken to depend
+only on their arguments and the environment (``ttc_path``, ``kitti_raw_sequence``, ``oc.*``).
+A test composes every option of every config group and every experiment both ways.
+
+:func:`core_settings` makes the core's :class:`ttc.pipeline.Settings` of many settings (a
+batch job's): each field is converted once per distinct value of the entries it is made of,
+and its converter sees only those entries (:data:`experiments.config.SETTINGS_FIELDS`).
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override, OverrideType
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from experiments.config import (
+    SETTING_KEYS,
+    SETTINGS_FIELDS,
+    finish_setting,
+    setting_config,
+    setting_entry,
+    settings_field,
+)
+from ttc.pipeline import Settings
+
+#: The override naming the batch a job computes (:mod:`experiments.plan`).
+BATCH_PREFIX = "batch="
+#: Keys of the Hydra node that a job's overrides change (besides ``runtime.choices``).
+JOB_KEYS = ("overrides.task", "job.override_dirname", "job.id", "job.num")
+#: Any top-level key (a relative interpolation that leaves its entry).
+ANY_KEY = "*"
+#: ``${path}`` (a reference) or ``${name:`` (a resolver, whose arguments match on their own).
+_INTERPOLATION = re.compile(r"\$\{\s*([^${}:\s]*)\s*([:}])")
+
+
+@dataclass(frozen=True)
+class Part:
+    """What one local override changes: its config key, that key's node and group choice in
+    the variant's composition, and the variant's composition itself."""
+
+    position: int
+    item: str
+    key: str
+    node: Any
+    choice: str | None
+    config: DictConfig
+
+    @property
+    def top(self) -> str:
+        """The top-level key the override sets something under."""
+        return self.key.split(".")[0]
+
+
+def _drop(container: dict[str, Any], dotted: str) -> None:
+    """Remove ``dotted`` (a.b.c) from nested dicts, if present."""
+    *parents, leaf = dotted.split(".")
+    for part in parents:
+        container = container.get(part)
+        if not isinstance(container, dict):
+            return
+    container.pop(leaf, None)
+
+
+def _comparable(container: dict[str, Any], key: str) -> dict[str, Any]:
+    """A copy of a config's plain containers (interpolations unresolved) without ``key``,
+    its choice and the job-specific Hydra keys."""
+    out = copy.deepcopy(container)
+    _drop(out, key)
+    for job_key in JOB_KEYS:
+        _drop(out["hydra"], job_key)
+    out["hydra"]["runtime"]["choices"].pop(key, None)
+    return out
+
+
+def references(value: Any, depth: int = 0) -> set[str]:
+    """The top-level keys that the interpolations inside ``value`` (an unresolved top-level
+    entry, or a part of one ``depth`` levels down) refer to; :data:`ANY_KEY` for a relative
+    one that leaves the entry."""
+    if isinstance(value, dict):
+        return set().union(*(references(v, depth + 1) for v in value.values()))
+    if isinstance(value, list):
+        return set().union(*(references(v, depth + 1) for v in value))
+    found: set[str] = set()
+    if isinstance(value, str) and "${" in value:
+        for path, end in _INTERPOLATION.findall(value):
+            dots = len(path) - len(path.lstrip("."))
+            if end == ":":
+                continue
+            if dots == 0:
+                found.add(path.split(".")[0].split("[")[0])
+            elif dots > depth:
+                found.add(ANY_KEY)
+    return found
+
+
+def override_dirname(task: Sequence[Override], naming: DictConfig) -> str:
+    """``hydra.job.override_dirname`` of a job's task overrides (Hydra's rule)."""
+    excluded = set(naming.exclude_keys)
+    lines = sorted(o.input_line for o in task if o.key_or_group not in excluded)
+    return re.sub(pattern="[=]", repl=naming.kv_sep, string=naming.item_sep.join(lines))
+
+
+class Composer:
+    """The configs and settings of a sweep's jobs (module docstring), from Hydra's
+    compositions of a template job and of one variant per distinct ``key=value``."""
+
+    def __init__(
+        self,
+        loader: Any,
+        master: DictConfig,
+        known: Mapping[tuple[str, ...], DictConfig] | None = None,
+        template: Sequence[str] | None = None,
+    ) -> None:
+        """``loader``: Hydra's config loader; ``master``: the multirun's master config;
+        ``known``: Hydra's compositions of some jobs made from the same ``master`` (the
+        sweeper's, handed to the workers); ``template``: the template job (default: the
+        first job asked for)."""
+        self.loader, self.master = loader, master
+        self.known: dict[tuple[str, ...], DictConfig] = dict(known or {})
+        self.parser = OverridesParser.create()
+        self.template: list[str] | None = None
+        self.full_compositions = 0  # Hydra compositions made by this composer
+        self._parts: dict[tuple[int, str], Part | None] = {}
+        self._entries: dict[tuple[str, tuple[tuple[int, str], ...]], Any] = {}
+        self._refs: dict[str, set[str]] = {}
+        self._closures: dict[str, set[str]] = {}
+        if template is not None:
+            self._set_template(list(template))
+
+    # -- Hydra's compositions ---------------------------------------------------------------
+    def hydra(self, overrides: Sequence[str]) -> DictConfig:
+        """Hydra's composition of a job, kept (shared: not to be modified)."""
+        key = tuple(overrides)
+        if key not in self.known:
+            self.full_compositions += 1
+            self.known[key] = self.loader.load_sweep_config(self.master, list(overrides))
+        return self.known[key]
+
+    def full(self, overrides: Sequence[str]) -> DictConfig:
+        """Hydra's own composition of a job, a new object (a copy of a kept one, or composed
+        and not kept)."""
+        key = tuple(overrides)
+        if key in self.known:
+            return copy.deepcopy(self.known[key])
+        self.full_compositions += 1
+        return self.loader.load_sweep_config(self.master, list(overrides))
+
+    def shared(self) -> tuple[list[str] | None, dict[tuple[str, ...], DictConfig]]:
+        """(template, kept compositions): what another process's composer starts from."""
+        return self.template, dict(self.known)
+
+    # -- jobs from parts --------------------------------------------------------------------
+    def _set_template(self, overrides: list[str]) -> None:
+        self.template = overrides
+        self.base = self.hydra(overrides)
+        self.keys = [o.key_or_group for o in self.parser.parse_overrides(overrides)]
+        self.base_container = OmegaConf.to_container(self.base, resolve=False)
+        self._add_references(self.base_container)
+
+    def _add_references(self, container: dict[str, Any]) -> None:
+        """Add the references between top-level keys of an unresolved config."""
+        for key, value in container.items():
+            if key != "hydra":
+                self._refs.setdefault(key, set()).update(references(value))
+        self._closures.clear()
+
+    def _reach(self, key: str) -> set[str]:
+        """``key`` and every top-level key its interpolations reach, transitively."""
+        if key not in self._closures:
+            reach, todo = {key}, [key]
+            while todo:
+                for ref in self._refs.get(todo.pop(), ()):
+                    if ref not in reach:
+                        reach.add(ref)
+                        todo.append(ref)
+            self._closures[key] = reach
+        return self._closures[key]
+
+    def _part(self, position: int, item: str) -> Part | None:
+        """The :class:`Part` of ``item`` at ``position`` when its variant is local."""
+        memo = (position, item)
+        if memo not in self._parts:
+            self._parts[memo] = None
+            (override,) = self.parser.parse_overrides([item])
+            if (
+                override.type == OverrideType.CHANGE
+                and override.package is None
+                and override.key_or_group == self.keys[position]
+            ):
+                self._parts[memo] = self._local_part(position, item, override)
+        return self._parts[memo]
+
+    def _local_part(self, position: int, item: str, override: Override) -> Part | None:
+        assert self.template is not None
+        variant = [*self.template[:position], item, *self.template[position + 1 :]]
+        cfg = self.hydra(variant)
+        key = override.key_or_group.replace("/", ".")
+        container = OmegaConf.to_container(cfg, resolve=False)
+        if _comparable(container, key) != _comparable(self.base_container, key):
+            return None
+        self._add_references(container)
+        choice = cfg.hydra.runtime.choices.get(key)
+        return Part(position, item, key, OmegaConf.select(cfg, key), choice, cfg)
+
+    def parts(self, overrides: Sequence[str]) -> list[Part] | None:
+        """The parts of the overrides that differ from the template; None when the job
+        cannot be derived from them (module docstring)."""
+        overrides = list(overrides)
+        if self.template is None:
+            self._set_template(overrides)
+        assert self.template is not None
+        if len(overrides) != len(self.template):
+            return None
+        parts = []
+        for position, item in enumerate(overrides):
+            if item != self.template[position]:
+                part = self._part(position, item)
+                if part is None:
+                    return None
+                parts.append(part)
+        for a, b in itertools.combinations(parts, 2):
+            if a.key == b.key or a.key.startswith(b.key + ".") or b.key.startswith(a.key + "."):
+                return None
+        return parts
+
+    def _swapped(self, parts: Sequence[Part]) -> DictConfig:
+        """The template's config with ``parts`` swapped in (shared when there is at most one
+        part: not to be modified)."""
+        if not parts:
+            return self.base
+        if len(parts) == 1:
+            return parts[0].config
+        cfg = copy.deepcopy(self.base)
+        _swap(cfg, parts)
+        return cfg
+
+    def config(self, overrides: Sequence[str]) -> DictConfig:
+        """The config of the job with these overrides, a new object (a batch's
+        ``batch=<id>``, a plain string each batch has its own of, is set on the config)."""
+        overrides = list(overrides)
+        batch = [o for o in overrides if o.startswith(BATCH_PREFIX)]
+        if batch:
+            cfg = self.config([o for o in overrides if not o.startswith(BATCH_PREFIX)])
+            with open_dict(cfg):
+                cfg.batch = batch[-1][len(BATCH_PREFIX) :]
+                cfg.hydra.overrides.task.extend(batch)
+            return cfg
+        parts = self.parts(overrides)
+        if parts is None:
+            return self.full(overrides)
+        cfg = copy.deepcopy(self.base)
+        _swap(cfg, parts)
+        task = [o for o in self.parser.parse_overrides(overrides) if not o.is_hydra_override()]
+        with open_dict(cfg.hydra):
+            cfg.hydra.overrides.task = [o.input_line for o in task]
+            naming = cfg.hydra.job.config.override_dirname
+            cfg.hydra.job.override_dirname = override_dirname(task, naming)
+        return cfg
+
+    def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
+        """The :func:`experiments.config.setting_config` of the job with these overrides;
+        entries equal between jobs are the same objects."""
+        parts = self.parts(overrides)
+        if parts is None:
+            return setting_config(self.full(overrides))
+        return finish_setting({key: self._entry(key, parts) for key in SETTING_KEYS})
+
+    def _entry(self, key: str, parts: Sequence[Part]) -> Any:
+        """Setting entry ``key`` of a job whose differing parts are ``parts``."""
+        reach = self._reach(key)
+        touching = [p for p in parts if ANY_KEY in reach or p.top in reach]
+        memo = (key, tuple((p.position, p.item) for p in touching))
+        if memo not in self._entries:
+            self._entries[memo] = setting_entry(self._swapped(touching), key)
+        return self._entries[memo]
+
+
+def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
+    """The first job and, for every other ``key=value`` at a position, the first job with that
+    value there (what :class:`Composer` composes); jobs of another length as they are."""
+    if not jobs:
+        return []
+    first = list(jobs[0])
+    out, seen = [first], set()
+    for job in jobs:
+        if len(job) != len(first):
+            out.append(list(job))
+            continue
+        for position, item in enumerate(job):
+            if item != first[position] and (position, item) not in seen:
+                seen.add((position, item))
+                out.append([*first[:position], item, *first[position + 1 :]])
+    return out
+
+
+def _swap(cfg: DictConfig, parts: Sequence[Part]) -> None:
+    """Set each part's node (a copy) and group choice on ``cfg``."""
+    for part in parts:
+        with open_dict(cfg):
+            OmegaConf.update(cfg, part.key, copy.deepcopy(part.node), merge=False)
+        if part.choice is not None:
+            with open_dict(cfg.hydra):
+                cfg.hydra.runtime.choices[part.key] = part.choice
+
+
+def core_settings(settings: Sequence[dict[str, Any]]) -> list[Settings | Exception]:
+    """The core's :class:`Settings` of each setting (the exception instead where a value is
+    bad: it costs only its setting), each field converted once per distinct value of its
+    entries."""
+    fields: dict[tuple[str, str], Any] = {}
+    out: list[Settings | Exception] = []
+    for setting in settings:
+        values: dict[str, Any] = {}
+        for name, (sources, _) in SETTINGS_FIELDS.items():
+            memo = (name, json.dumps([setting.get(s) for s in sources], sort_keys=True))
+            if memo not in fields:
+                try:
+                    fields[memo] = settings_field(name, setting)
+                except Exception as exc:  # kept: every setting with this value fails alike
+                    fields[memo] = exc
+            if isinstance(fields[memo], Exception):
+                out.append(fields[memo])
+                break
+            values[name] = fields[memo]
+        else:
+            out.append(Settings(**values))
+    return out
