@@ -12,10 +12,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
+from experiments.callbacks import INTERRUPTED_STATUS, stop_progress
 from experiments.store import RUNS_DIR
-
-#: Exit status of a process ended by SIGINT.
-EXIT_INTERRUPTED = 130
 
 
 def done_count(sweep_dir: Path, run_ids: Sequence[str]) -> int:
@@ -41,7 +39,8 @@ def interrupted_line(sweep_dir: Path, run_ids: Sequence[str]) -> str:
 
 
 def exit_interrupted(sweep_dir: Path, run_ids: Sequence[str]) -> NoReturn:
-    """Print :func:`interrupted_line` and exit with status 130."""
+    """End the progress bar, print :func:`interrupted_line` and exit with status 130."""
+    stop_progress()
     sys.stdout.flush()
     print(interrupted_line(sweep_dir, run_ids), file=sys.stderr, flush=True)
-    raise SystemExit(EXIT_INTERRUPTED)
+    raise SystemExit(INTERRUPTED_STATUS)
