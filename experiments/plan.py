@@ -29,8 +29,8 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import progress, store
-from experiments.config import setting_hash
 from experiments.finished import plan_line
+from experiments.identity import setting_hash
 from experiments.records import now, peak_rss_mb, record_head
 from experiments.sweep.compose import Composer
 from ttc.descriptors import check_pair

@@ -11,7 +11,7 @@ template with that one value), then derives every job from them:
   composition differs from the template's only under ``key`` (and its choice in
   ``hydra.runtime.choices``), interpolations unresolved; and when no two differing overrides
   set overlapping keys (one under the other);
-* a job's **setting** (:func:`experiments.config.setting_config`, what the planner reads) is
+* a job's **setting** (:func:`experiments.identity.setting_config`, what the planner reads) is
   made of its entries, each resolved once per distinct set of overrides it can depend on: the
   differing overrides that set the entry itself or any top-level key its interpolations reach
   (read from the template's and the variants' unresolved configs, transitively).
@@ -40,14 +40,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override, OverrideType
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from experiments.config import (
-    SETTING_KEYS,
-    SETTINGS_FIELDS,
-    finish_setting,
-    setting_config,
-    setting_entry,
-    settings_field,
-)
+from experiments.config import SETTINGS_FIELDS, settings_field
+from experiments.identity import SETTING_KEYS, finish_setting, setting_config, setting_entry
 from ttc.pipeline import Settings
 
 #: The override naming the batch a job computes (:mod:`experiments.plan`).
@@ -285,7 +279,7 @@ class Composer:
         return cfg
 
     def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
-        """The :func:`experiments.config.setting_config` of the job with these overrides;
+        """The :func:`experiments.identity.setting_config` of the job with these overrides;
         entries equal between jobs are the same objects."""
         parts = self.parts(overrides)
         if parts is None:
