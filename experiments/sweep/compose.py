@@ -31,6 +31,7 @@ from __future__ import annotations
 import copy
 import itertools
 import json
+import operator
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -65,11 +66,6 @@ class Part:
     node: Any
     choice: str | None
     config: DictConfig
-
-    @property
-    def top(self) -> str:
-        """The top-level key the override sets something under."""
-        return self.key.split(".")[0]
 
 
 def _drop(container: dict[str, Any], dotted: str) -> None:
@@ -142,9 +138,10 @@ class Composer:
         self.template: list[str] | None = None
         self.full_compositions = 0  # Hydra compositions made by this composer
         self._parts: dict[tuple[int, str], Part | None] = {}
-        self._entries: dict[tuple[str, tuple[tuple[int, str], ...]], Any] = {}
+        self._entries: dict[tuple[str, tuple[int, ...], Any], Any] = {}
         self._refs: dict[str, set[str]] = {}
         self._closures: dict[str, set[str]] = {}
+        self._positions: dict[str, tuple[tuple[int, ...], Any]] = {}
         if template is not None:
             self._set_template(list(template))
 
@@ -175,6 +172,12 @@ class Composer:
         self.template = overrides
         self.base = self.hydra(overrides)
         self.keys = [o.key_or_group for o in self.parser.parse_overrides(overrides)]
+        dotted = [key.replace("/", ".") for key in self.keys]
+        self._overlaps = [
+            (i, j)
+            for i, j in itertools.combinations(range(len(dotted)), 2)
+            if _overlap(dotted[i], dotted[j])
+        ]
         self.base_container = OmegaConf.to_container(self.base, resolve=False)
         self._add_references(self.base_container)
 
@@ -184,6 +187,7 @@ class Composer:
             if key != "hydra":
                 self._refs.setdefault(key, set()).update(references(value))
         self._closures.clear()
+        self._positions.clear()
 
     def _reach(self, key: str) -> set[str]:
         """``key`` and every top-level key its interpolations reach, transitively."""
@@ -232,16 +236,16 @@ class Composer:
         assert self.template is not None
         if len(overrides) != len(self.template):
             return None
-        parts = []
+        parts, differing = [], set()
         for position, item in enumerate(overrides):
             if item != self.template[position]:
                 part = self._part(position, item)
                 if part is None:
                     return None
                 parts.append(part)
-        for a, b in itertools.combinations(parts, 2):
-            if a.key == b.key or a.key.startswith(b.key + ".") or b.key.startswith(a.key + "."):
-                return None
+                differing.add(position)
+        if any(i in differing and j in differing for i, j in self._overlaps):
+            return None
         return parts
 
     def _swapped(self, parts: Sequence[Part]) -> DictConfig:
@@ -281,19 +285,33 @@ class Composer:
     def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
         """The :func:`experiments.identity.setting_config` of the job with these overrides;
         entries equal between jobs are the same objects."""
+        overrides = list(overrides)
         parts = self.parts(overrides)
         if parts is None:
             return setting_config(self.full(overrides))
-        return finish_setting({key: self._entry(key, parts) for key in SETTING_KEYS})
+        entries = {}
+        for key in SETTING_KEYS:
+            positions, values = self._reaching(key)
+            memo = (key, positions, values(overrides))
+            if memo not in self._entries:  # once per distinct value of what reaches it
+                touching = [p for p in parts if p.position in positions]
+                self._entries[memo] = setting_entry(self._swapped(touching), key)
+            entries[key] = self._entries[memo]
+        return finish_setting(entries)
 
-    def _entry(self, key: str, parts: Sequence[Part]) -> Any:
-        """Setting entry ``key`` of a job whose differing parts are ``parts``."""
-        reach = self._reach(key)
-        touching = [p for p in parts if ANY_KEY in reach or p.top in reach]
-        memo = (key, tuple((p.position, p.item) for p in touching))
-        if memo not in self._entries:
-            self._entries[memo] = setting_entry(self._swapped(touching), key)
-        return self._entries[memo]
+    def _reaching(self, key: str) -> tuple[tuple[int, ...], Any]:
+        """The positions of the overrides that can change setting entry ``key`` (those that
+        set a top-level key in its :meth:`_reach`), and a function of a job's overrides giving
+        their values there."""
+        if key not in self._positions:
+            reach = self._reach(key)
+            positions = tuple(
+                i for i, k in enumerate(self.keys)
+                if ANY_KEY in reach or k.replace("/", ".").split(".")[0] in reach
+            )  # fmt: skip
+            values = operator.itemgetter(*positions) if positions else (lambda _: ())
+            self._positions[key] = (positions, values)
+        return self._positions[key]
 
 
 def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
@@ -312,6 +330,11 @@ def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
                 seen.add((position, item))
                 out.append([*first[:position], item, *first[position + 1 :]])
     return out
+
+
+def _overlap(a: str, b: str) -> bool:
+    """True when dotted keys ``a`` and ``b`` are one or one is under the other."""
+    return a == b or a.startswith(b + ".") or b.startswith(a + ".")
 
 
 def _swap(cfg: DictConfig, parts: Sequence[Part]) -> None:
