@@ -153,3 +153,23 @@ def test_worker_processes_end_with_the_sweep() -> None:
     _, alive = psutil.wait_procs(procs, timeout=10)
     assert not alive  # none still alive after 10 s
     assert not pids & {c.pid for c in psutil.Process().children(recursive=True)}
+
+
+@pytest.mark.parametrize("max_batch_size", [None, 5])
+def test_the_jobs_are_hydras_basic_sweepers(loader_and_master, max_batch_size) -> None:
+    """Sweep overrides expand into the jobs, in the order and batches, of Hydra's basic
+    sweeper (params first, a later override of a key taking its place; glob and range)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper  # noqa: PLC0415
+    from hydra.core.override_parser.overrides_parser import OverridesParser  # noqa: PLC0415
+
+    from experiments.sweep.jobs import batches, expand  # noqa: PLC0415
+
+    loader, _ = loader_and_master
+    parser = OverridesParser.create(config_loader=loader)
+    for args in (["detector=fast,orb", "matcher=glob(*)", "dataset.last=range(3,5)"],
+                 ["descriptor=brief,orb", "selector=nn", "descriptor=sift", "+experiment=x"],
+                 ["lidar_ttc=glob(*,exclude=cluster)", "detector=fast,orb", "lidar.shrink=0.2"],
+                 []):  # fmt: skip
+        overrides = parser.parse_overrides(args)
+        expected = BasicSweeper.split_arguments(overrides, max_batch_size)
+        assert batches(expand(overrides), max_batch_size) == expected, args

@@ -6,15 +6,18 @@ plan before launch, every job run when some fail and a one-line Ctrl-C."""
 from dataclasses import dataclass
 from typing import Optional
 
-from hydra._internal.core_plugins.basic_sweeper import BasicSweeperConf
 from hydra.core.config_store import ConfigStore
 
 from experiments.sweep.sweeper import SweepSweeper
 
 
 @dataclass
-class TTCSweeperConf(BasicSweeperConf):
+class TTCSweeperConf:
     _target_: str = "hydra_plugins.ttc_sweeper.TTCSweeper"
+    #: Most jobs launched at once (None: all of them), as Hydra's basic sweeper.
+    max_batch_size: Optional[int] = None  # noqa: UP045 (Hydra)
+    #: The swept overrides, ``{key: values}`` (an experiment's ``hydra.sweeper.params``).
+    params: Optional[dict[str, str]] = None  # noqa: UP045 (Hydra)
     #: Dotted path of a function(cfg) raising ValueError for a config whose values are wrong.
     validator: Optional[str] = "experiments.config.validate_config"  # noqa: UP045 (Hydra)
     #: Most settings one job computes together (1: one setting per job, no batches).
