@@ -36,7 +36,7 @@ def test_the_line_counts_the_records(tmp_path: Path) -> None:
     (tmp_path / "runs" / "c.parquet").write_text("")
     assert done_count(tmp_path, ["a", "b", "c"]) == 2
     assert "2 of 3 settings done" in interrupted_line(tmp_path, ["a", "b", "c", "c"])
-    assert "before the sweep was planned" in interrupted_line(tmp_path, [])
+    assert "before the sweep was planned: nothing launched" in interrupted_line(tmp_path, [])
 
 
 def descendants(pid: int) -> list:

@@ -30,7 +30,7 @@ def interrupted_line(sweep_dir: Path, run_ids: Sequence[str]) -> str:
     """The one line an interrupted sweep prints."""
     total = len(set(run_ids))
     if not total:
-        return f"interrupted before the sweep was planned: nothing computed in {sweep_dir}"
+        return f"interrupted before the sweep was planned: nothing launched in {sweep_dir}"
     done = done_count(sweep_dir, run_ids)
     return (
         f"interrupted: {done} of {total} settings done (kept in {sweep_dir}); "

@@ -77,6 +77,7 @@ class SweepLauncher(JoblibLauncher):
         super().__init__(**kwargs)
         self._payload: tuple[str, bytes] | None = None
         self._shared: tuple[str, bytes] = ("", b"")
+        self._composer: Composer | None = None
         self._warming: threading.Thread | None = None
 
     def _state(self, started: Path) -> SweepState:
@@ -91,6 +92,7 @@ class SweepLauncher(JoblibLauncher):
         """Hand over the sweeper's composer state (made from this launcher's master config):
         the workers' :class:`Composer` starts from it instead of composing again."""
         self._shared = pickled(composer.shared())
+        self._composer = composer
 
     def warm_up(self) -> None:
         """Start the pool's workers now, in the background: each imports the task's module and
@@ -191,7 +193,9 @@ class SweepLauncher(JoblibLauncher):
     def _died(self, idx: int, overrides: list[str], message: str) -> JobReturn:
         """The FAILED return of a job whose worker died, told to the callbacks."""
         assert self.hydra_context is not None and self.config is not None
-        cfg: DictConfig = self.hydra_context.config_loader.load_sweep_config(self.config, overrides)
+        if self._composer is None:
+            self._composer = Composer(self.hydra_context.config_loader, self.config)
+        cfg: DictConfig = self._composer.config(overrides)
         with open_dict(cfg):
             cfg.hydra.job.id, cfg.hydra.job.num = f"{cfg.hydra.job.name}_{idx}", idx
         ret = JobReturn(
