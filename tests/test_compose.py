@@ -167,3 +167,29 @@ def test_fp6_grid_run_ids_unchanged(hydra_env) -> None:
     assert len(ids) == 168
     assert hashlib.sha256(" ".join(ids).encode()).hexdigest()[:16] == "9890b83e3936bc31"
     assert composer.full_compositions == 1 + 6 + 5 + 1 + 1  # the template and its variants
+
+
+def test_kept_compositions_serve_a_re_plan(hydra_env, tmp_path) -> None:
+    """A sweep planned again with the same key composes nothing: the kept compositions give
+    the same configs and settings; another key (another master config) finds none."""
+    from experiments.sweep.kept import compositions_key, keep_compositions, load_compositions
+
+    loader, master_of = hydra_env
+    master = master_of(["+experiment=fp5_lidar"])
+    jobs = sweep_jobs(loader, master)
+    first = Composer(loader, master)
+    settings = [first.setting(j) for j in jobs]
+    key = compositions_key("plan-key", master)
+    keep_compositions(tmp_path, key, first.known)
+    again = Composer(loader, master, load_compositions(tmp_path, key))
+    assert [again.setting(j) for j in jobs] == settings
+    for job in jobs:
+        assert OmegaConf.to_container(again.config(job)) == OmegaConf.to_container(
+            first.config(job)
+        )
+    assert again.full_compositions == 0
+    assert compositions_key("plan-key", master_of(["+experiment=fp6_grid"])) != key
+    assert compositions_key("other", master) != key
+    assert load_compositions(tmp_path, "missing") == {}
+    (tmp_path / ".plan" / f"compositions-{key}.pkl").write_bytes(b"broken")
+    assert load_compositions(tmp_path, key) == {}

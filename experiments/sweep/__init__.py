@@ -1,4 +1,5 @@
 """How a sweep runs: its jobs' configs and settings (:mod:`.compose`), the workers and the
-launcher that runs them (:mod:`.workers`, :mod:`.launcher`), the sweeper that validates and
-plans (:mod:`.sweeper`) and what Ctrl-C says (:mod:`.interrupt`). The Hydra plugins in
+launcher that runs them (:mod:`.workers`, :mod:`.launcher`), the sweeper that expands the
+jobs, validates and plans (:mod:`.jobs`, :mod:`.sweeper`, its compositions kept for a re-plan:
+:mod:`.kept`) and what Ctrl-C says (:mod:`.interrupt`). The Hydra plugins in
 ``hydra_plugins/`` are thin shims over these modules."""

@@ -49,6 +49,7 @@ from omegaconf import DictConfig, OmegaConf
 from experiments.sweep.compose import Composer, variant_jobs
 from experiments.sweep.interrupt import exit_interrupted
 from experiments.sweep.jobs import batches, expand
+from experiments.sweep.kept import compositions_key, keep_compositions, load_compositions
 
 log = logging.getLogger(__name__)
 
@@ -188,11 +189,16 @@ class SweepSweeper(Sweeper):
         if plan is None:  # validate, then plan (the launcher's workers start meanwhile)
             if hasattr(self.launcher, "warm_up") and planning.records_missing(sweep_dir, batch):
                 self.launcher.warm_up()
+            composer = self._composer()
+            kept_key = compositions_key(key, self.config)
+            composer.known.update(load_compositions(sweep_dir, kept_key))
+            made = composer.full_compositions
             self.validate_batch_is_legal(batch)
             limit = max(1, self.max_settings_per_job)
-            composer = self._composer()
             plan = planning.make_plan(batch, composer, self.config, sweep_dir, limit)
             planning.remember_run_ids(sweep_dir, key, plan.run_ids)
+            if composer.full_compositions > made:  # kept for a re-plan (a resumed sweep)
+                keep_compositions(sweep_dir, kept_key, composer.known)
             if hasattr(self.launcher, "share_compositions"):
                 self.launcher.share_compositions(composer)
         self.run_ids += plan.run_ids
