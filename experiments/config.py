@@ -175,16 +175,19 @@ def _tracking(matcher: dict[str, Any]) -> bool:
 
 
 def _descriptor(descriptor: dict[str, Any], matcher: dict[str, Any]) -> Any:
+    """The descriptor's parameters (none for a tracking matcher)."""
     if _tracking(matcher):
         return NO_DESCRIPTOR
     return _params(descriptor, DESCRIPTORS[descriptor["name"]])
 
 
 def _selector(selector: dict[str, Any], matcher: dict[str, Any]) -> Any:
+    """The selector's parameters (none for a tracking matcher)."""
     return NO_SELECTOR if _tracking(matcher) else _params(selector, SelectorParams)
 
 
 def _single(group: str) -> tuple[tuple[str, ...], Any]:
+    """The :data:`SETTINGS_FIELDS` entry of a group with one parameter class."""
     schema = SINGLE_CLASS_GROUPS[group]
     return (group,), lambda entry: _params(entry, schema)
 

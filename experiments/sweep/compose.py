@@ -169,6 +169,7 @@ class Composer:
 
     # -- jobs from parts --------------------------------------------------------------------
     def _set_template(self, overrides: list[str]) -> None:
+        """Compose the template job; note its keys, overlapping positions and references."""
         self.template = overrides
         self.base = self.hydra(overrides)
         self.keys = [o.key_or_group for o in self.parser.parse_overrides(overrides)]
@@ -216,6 +217,8 @@ class Composer:
         return self._parts[memo]
 
     def _local_part(self, position: int, item: str, override: Override) -> Part | None:
+        """Compose the variant with ``item`` at ``position``; its :class:`Part` when it
+        differs from the template only under the override's key, else None."""
         assert self.template is not None
         variant = [*self.template[:position], item, *self.template[position + 1 :]]
         cfg = self.hydra(variant)

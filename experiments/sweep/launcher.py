@@ -74,6 +74,7 @@ class SweepLauncher(JoblibLauncher):
     """:class:`JoblibLauncher` that pickles the sweep state once and composes jobs cheaply."""
 
     def __init__(self, **kwargs: Any) -> None:
+        """``kwargs``: the joblib launcher's options."""
         super().__init__(**kwargs)
         self._payload: tuple[str, bytes] | None = None
         self._shared: tuple[str, bytes] = ("", b"")
@@ -108,6 +109,7 @@ class SweepLauncher(JoblibLauncher):
         workers = effective_n_jobs(options.get("n_jobs"))
 
         def start() -> None:
+            """Run :func:`warm` once in each worker."""
             try:
                 Parallel(**options)(delayed(warm)(state, modules) for _ in range(workers))
             except Exception as exc:  # the launch starts the pool again and reports errors

@@ -156,6 +156,7 @@ class SweepSweeper(Sweeper):
                 self.launcher.release()
 
     def _sweep(self, arguments: list[str], sweep_dir: Path) -> list[Sequence[JobReturn]]:
+        """Expand the jobs, then plan and launch them batch by batch; the returns."""
         assert self.config is not None and self.launcher is not None
         assert self.hydra_context is not None
         parser = OverridesParser.create(config_loader=self.hydra_context.config_loader)

@@ -14,6 +14,8 @@ from experiments.sweep.launcher import SweepLauncher
 
 @dataclass
 class TTCLauncherConf(JobLibLauncherConf):
+    """``hydra/launcher=ttc_joblib``: the joblib launcher's options."""
+
     _target_: str = "hydra_plugins.ttc_launcher.TTCLauncher"
 
 

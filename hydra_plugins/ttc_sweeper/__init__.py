@@ -13,6 +13,8 @@ from experiments.sweep.sweeper import SweepSweeper
 
 @dataclass
 class TTCSweeperConf:
+    """``hydra/sweeper=ttc``: the basic sweeper's options and the ttc sweeper's own."""
+
     _target_: str = "hydra_plugins.ttc_sweeper.TTCSweeper"
     #: Most jobs launched at once (None: all of them), as Hydra's basic sweeper.
     max_batch_size: Optional[int] = None  # noqa: UP045 (Hydra)
