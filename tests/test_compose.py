@@ -139,6 +139,7 @@ def test_references_between_entries() -> None:
     }
     assert references({"seq": "${kitti_raw_sequence:${.date},${.drive}}"}) == set()
     assert references({"seq": "${..x}"}) == {"*"}
+    assert references({"a": "${oc.select:dataset.root,/}"}) == {"*"}  # reads a key by name
 
 
 def test_core_settings_of_a_batch(hydra_env) -> None:

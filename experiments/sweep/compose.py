@@ -18,7 +18,9 @@ template with that one value), then derives every job from them:
 
 Anything else (another number of overrides, another key at a position, a variant that is not
 local, overlapping keys) goes through Hydra's full composition. Resolvers are taken to depend
-only on their arguments and the environment (``ttc_path``, ``kitti_raw_sequence``, ``oc.*``).
+only on their arguments and the environment (``ttc_path``, ``kitti_raw_sequence``,
+``oc.env``, ``oc.decode``), except those that read the config by a key
+(:data:`CONFIG_READING_RESOLVERS`: an entry using one may depend on any other).
 A test composes every option of every config group and every experiment both ways.
 
 :func:`core_settings` makes the core's :class:`ttc.pipeline.Settings` of many settings (a
@@ -51,6 +53,8 @@ BATCH_PREFIX = "batch="
 JOB_KEYS = ("overrides.task", "job.override_dirname", "job.id", "job.num")
 #: Any top-level key (a relative interpolation that leaves its entry).
 ANY_KEY = "*"
+#: Resolvers that read the config by a key given as a plain string (not an interpolation).
+CONFIG_READING_RESOLVERS = ("oc.select", "oc.dict.keys", "oc.dict.values")
 #: ``${path}`` (a reference) or ``${name:`` (a resolver, whose arguments match on their own).
 _INTERPOLATION = re.compile(r"\$\{\s*([^${}:\s]*)\s*([:}])")
 
@@ -102,6 +106,8 @@ def references(value: Any, depth: int = 0) -> set[str]:
         for path, end in _INTERPOLATION.findall(value):
             dots = len(path) - len(path.lstrip("."))
             if end == ":":
+                if path in CONFIG_READING_RESOLVERS:
+                    found.add(ANY_KEY)
                 continue
             if dots == 0:
                 found.add(path.split(".")[0].split("[")[0])
