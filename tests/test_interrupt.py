@@ -82,3 +82,27 @@ def test_ctrl_c_says_what_it_kept(tmp_path: Path) -> None:
     assert f"sweep plan: 12 settings: {done} already complete (not launched)" in again.stdout
     assert f"this invocation: {SETTINGS - done} computed, {done} already complete" in again.stdout
     assert {name: (runs / name).read_bytes() for name in kept} == kept  # not recomputed
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_the_workers_warm_up(tmp_path: Path) -> None:
+    """SIGINT as soon as the workers exist (the sweep is being planned, the workers warm the
+    stage cache up): the same one line, exit 130, no traceback from the warm-up thread."""
+    psutil = pytest.importorskip("psutil")
+    env = {**os.environ, "TTC_RESULTS_DIR": str(tmp_path / "sweeps"),
+           "TTC_CACHE_DIR": str(tmp_path / "cache")}  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-m", "experiments.run", *ARGS], cwd=PROJECT_ROOT,
+                            env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)  # fmt: skip
+    deadline = time.time() + 120
+    while time.time() < deadline and len(descendants(proc.pid)) < 2 and proc.poll() is None:
+        time.sleep(0.02)
+    time.sleep(0.5)  # the workers import and start warming up
+    workers = descendants(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-3000:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert err.strip().splitlines()[-1].startswith("interrupted"), err[-3000:]
+    _, alive = psutil.wait_procs(workers, timeout=10)
+    assert not alive, f"workers left behind: {alive}"

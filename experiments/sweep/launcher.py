@@ -112,8 +112,8 @@ class SweepLauncher(JoblibLauncher):
             """Run :func:`warm` once in each worker."""
             try:
                 Parallel(**options)(delayed(warm)(state, modules) for _ in range(workers))
-            except Exception as exc:  # the launch starts the pool again and reports errors
-                log.debug(f"warming the workers up failed: {exc!r}")
+            except BaseException as exc:  # Ctrl-C too: the main thread says what it kept
+                log.debug(f"warming the workers up failed: {exc!r}")  # the launch reports errors
 
         log.info(f"Starting {workers} workers while the sweep is planned")
         self._warming = threading.Thread(target=start, name="ttc-warm-up", daemon=True)
