@@ -23,7 +23,8 @@ from experiments.config import (
     setting_hash,
     settings_from_config,
 )
-from experiments.sweep.compose import Composer, core_settings, references, variant_jobs
+from experiments.sweep.compose import Composer, core_settings, variant_jobs
+from experiments.sweep.containers import references
 from tests.conftest import PROJECT_ROOT
 
 CONF = PROJECT_ROOT / "conf"

@@ -34,7 +34,6 @@ import copy
 import itertools
 import json
 import operator
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -45,18 +44,17 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from experiments.config import SETTINGS_FIELDS, settings_field
 from experiments.identity import SETTING_KEYS, finish_setting, setting_config, setting_entry
+from experiments.sweep.containers import (
+    ANY_KEY,
+    comparable,
+    overlap,
+    override_dirname,
+    references,
+)
 from ttc.pipeline import Settings
 
 #: The override naming the batch a job computes (:mod:`experiments.plan`).
 BATCH_PREFIX = "batch="
-#: Keys of the Hydra node that a job's overrides change (besides ``runtime.choices``).
-JOB_KEYS = ("overrides.task", "job.override_dirname", "job.id", "job.num")
-#: Any top-level key (a relative interpolation that leaves its entry).
-ANY_KEY = "*"
-#: Resolvers that read the config by a key given as a plain string (not an interpolation).
-CONFIG_READING_RESOLVERS = ("oc.select", "oc.dict.keys", "oc.dict.values")
-#: ``${path}`` (a reference) or ``${name:`` (a resolver, whose arguments match on their own).
-_INTERPOLATION = re.compile(r"\$\{\s*([^${}:\s]*)\s*([:}])")
 
 
 @dataclass(frozen=True)
@@ -70,57 +68,6 @@ class Part:
     node: Any
     choice: str | None
     config: DictConfig
-
-
-def _drop(container: dict[str, Any], dotted: str) -> None:
-    """Remove ``dotted`` (a.b.c) from nested dicts, if present."""
-    *parents, leaf = dotted.split(".")
-    for part in parents:
-        container = container.get(part)
-        if not isinstance(container, dict):
-            return
-    container.pop(leaf, None)
-
-
-def _comparable(container: dict[str, Any], key: str) -> dict[str, Any]:
-    """A copy of a config's plain containers (interpolations unresolved) without ``key``,
-    its choice and the job-specific Hydra keys."""
-    out = copy.deepcopy(container)
-    _drop(out, key)
-    for job_key in JOB_KEYS:
-        _drop(out["hydra"], job_key)
-    out["hydra"]["runtime"]["choices"].pop(key, None)
-    return out
-
-
-def references(value: Any, depth: int = 0) -> set[str]:
-    """The top-level keys that the interpolations inside ``value`` (an unresolved top-level
-    entry, or a part of one ``depth`` levels down) refer to; :data:`ANY_KEY` for a relative
-    one that leaves the entry."""
-    if isinstance(value, dict):
-        return set().union(*(references(v, depth + 1) for v in value.values()))
-    if isinstance(value, list):
-        return set().union(*(references(v, depth + 1) for v in value))
-    found: set[str] = set()
-    if isinstance(value, str) and "${" in value:
-        for path, end in _INTERPOLATION.findall(value):
-            dots = len(path) - len(path.lstrip("."))
-            if end == ":":
-                if path in CONFIG_READING_RESOLVERS:
-                    found.add(ANY_KEY)
-                continue
-            if dots == 0:
-                found.add(path.split(".")[0].split("[")[0])
-            elif dots > depth:
-                found.add(ANY_KEY)
-    return found
-
-
-def override_dirname(task: Sequence[Override], naming: DictConfig) -> str:
-    """``hydra.job.override_dirname`` of a job's task overrides (Hydra's rule)."""
-    excluded = set(naming.exclude_keys)
-    lines = sorted(o.input_line for o in task if o.key_or_group not in excluded)
-    return re.sub(pattern="[=]", repl=naming.kv_sep, string=naming.item_sep.join(lines))
 
 
 class Composer:
@@ -183,7 +130,7 @@ class Composer:
         self._overlaps = [
             (i, j)
             for i, j in itertools.combinations(range(len(dotted)), 2)
-            if _overlap(dotted[i], dotted[j])
+            if overlap(dotted[i], dotted[j])
         ]
         self.base_container = OmegaConf.to_container(self.base, resolve=False)
         self._add_references(self.base_container)
@@ -230,7 +177,7 @@ class Composer:
         cfg = self.hydra(variant)
         key = override.key_or_group.replace("/", ".")
         container = OmegaConf.to_container(cfg, resolve=False)
-        if _comparable(container, key) != _comparable(self.base_container, key):
+        if comparable(container, [key]) != comparable(self.base_container, [key]):
             return None
         self._add_references(container)
         choice = cfg.hydra.runtime.choices.get(key)
@@ -339,11 +286,6 @@ def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
                 seen.add((position, item))
                 out.append([*first[:position], item, *first[position + 1 :]])
     return out
-
-
-def _overlap(a: str, b: str) -> bool:
-    """True when dotted keys ``a`` and ``b`` are one or one is under the other."""
-    return a == b or a.startswith(b + ".") or b.startswith(a + ".")
 
 
 def _swap(cfg: DictConfig, parts: Sequence[Part]) -> None:
