@@ -177,7 +177,7 @@ def test_kept_compositions_serve_a_re_plan(hydra_env, tmp_path) -> None:
     from experiments.sweep.kept import compositions_key, keep_compositions, load_compositions
 
     loader, master_of = hydra_env
-    master = master_of(["+experiment=fp5_lidar"])
+    master = master_of(["+experiment=fp5_lidar", "hydra.launcher.n_jobs=1"])  # plugin conf nodes
     jobs = sweep_jobs(loader, master)
     first = Composer(loader, master)
     settings = [first.setting(j) for j in jobs]
@@ -195,3 +195,34 @@ def test_kept_compositions_serve_a_re_plan(hydra_env, tmp_path) -> None:
     assert load_compositions(tmp_path, "missing") == {}
     (tmp_path / ".plan" / f"compositions-{key}.pkl").write_bytes(b"broken")
     assert load_compositions(tmp_path, key) == {}
+
+
+@pytest.mark.parametrize(
+    "change",
+    [["keypoint_filter=zscore"], ["detector=orb,fast", "dataset.last=5"], ["+tracking=mlflow"]],
+)
+def test_an_earlier_plan_serves_another_sweep(hydra_env, change) -> None:
+    """After ``fp6_grid``, the same sweep with another axis (or a changed swept key) takes the
+    variants of the axes it did not change from the earlier plan: only its own template and
+    the variants of the changed keys are composed, and every job is still Hydra's."""
+    from experiments.sweep.earlier import EarlierPlan
+
+    loader, master_of = hydra_env
+    first_master = master_of(["+experiment=fp6_grid"])
+    first = Composer(loader, first_master)
+    for job in variant_jobs(sweep_jobs(loader, first_master)):
+        first.setting(job)
+    earlier = EarlierPlan(first.template, first.known)
+    master = master_of(["+experiment=fp6_grid", *change])
+    jobs = sweep_jobs(loader, master)
+    composer = Composer(loader, master, earlier=earlier)
+    picked = variant_jobs(jobs) + jobs[-1:] + jobs[len(jobs) // 3 : len(jobs) // 3 + 1]
+    for job in picked:
+        same_as_hydra(composer, job)
+    if change[0].startswith("+"):  # an addition: the templates do not differ by a change
+        assert composer.inherited == 0
+        return
+    if change[0].startswith("keypoint"):  # every variant inherited: only the new template
+        assert (composer.inherited, composer.full_compositions) == (6 + 5 + 1 + 1, 1)
+    else:  # the detector changed: its variant composed, the others' inherited
+        assert (composer.inherited, composer.full_compositions) == (5 + 1 + 1, 1 + 1)

@@ -51,6 +51,7 @@ from experiments.sweep.containers import (
     override_dirname,
     references,
 )
+from experiments.sweep.earlier import EarlierPlan
 from ttc.pipeline import Settings
 
 #: The override naming the batch a job computes (:mod:`experiments.plan`).
@@ -67,7 +68,7 @@ class Part:
     key: str
     node: Any
     choice: str | None
-    config: DictConfig
+    config: DictConfig | None  # None: the variant is an earlier plan's (another template)
 
 
 class Composer:
@@ -80,16 +81,20 @@ class Composer:
         master: DictConfig,
         known: Mapping[tuple[str, ...], DictConfig] | None = None,
         template: Sequence[str] | None = None,
+        earlier: EarlierPlan | None = None,
     ) -> None:
         """``loader``: Hydra's config loader; ``master``: the multirun's master config;
         ``known``: Hydra's compositions of some jobs made from the same ``master`` (the
         sweeper's, handed to the workers); ``template``: the template job (default: the
-        first job asked for)."""
+        first job asked for); ``earlier``: an earlier plan of the sweep folder, whose
+        variants serve where they can (:mod:`experiments.sweep.earlier`)."""
         self.loader, self.master = loader, master
         self.known: dict[tuple[str, ...], DictConfig] = dict(known or {})
         self.parser = OverridesParser.create()
         self.template: list[str] | None = None
         self.full_compositions = 0  # Hydra compositions made by this composer
+        self.earlier, self._view = earlier, None
+        self.inherited = 0  # parts taken from the earlier plan's variants
         self._parts: dict[tuple[int, str], Part | None] = {}
         self._entries: dict[tuple[str, tuple[int, ...], Any], Any] = {}
         self._refs: dict[str, set[str]] = {}
@@ -116,9 +121,10 @@ class Composer:
         self.full_compositions += 1
         return self.loader.load_sweep_config(self.master, list(overrides))
 
-    def shared(self) -> tuple[list[str] | None, dict[tuple[str, ...], DictConfig]]:
-        """(template, kept compositions): what another process's composer starts from."""
-        return self.template, dict(self.known)
+    def shared(self) -> tuple[Any, ...]:
+        """(template, kept compositions, earlier plan): what another process's composer
+        starts from (``Composer(loader, master, *shared)``)."""
+        return dict(self.known), self.template, self.earlier
 
     # -- jobs from parts --------------------------------------------------------------------
     def _set_template(self, overrides: list[str]) -> None:
@@ -134,6 +140,8 @@ class Composer:
         ]
         self.base_container = OmegaConf.to_container(self.base, resolve=False)
         self._add_references(self.base_container)
+        if self.earlier is not None:
+            self._view = self.earlier.view(overrides, self.base_container)
 
     def _add_references(self, container: dict[str, Any]) -> None:
         """Add the references between top-level keys of an unresolved config."""
@@ -166,8 +174,22 @@ class Composer:
                 and override.package is None
                 and override.key_or_group == self.keys[position]
             ):
-                self._parts[memo] = self._local_part(position, item, override)
+                earlier = self._earlier_part(position, item)
+                self._parts[memo] = earlier or self._local_part(position, item, override)
         return self._parts[memo]
+
+    def _earlier_part(self, position: int, item: str) -> Part | None:
+        """The :class:`Part` of ``item`` at ``position`` from the earlier plan's variant,
+        when it has a local one and the templates differ only elsewhere."""
+        found = self._view.variant(self.keys[position], item) if self._view else None
+        if found is None:
+            return None
+        cfg, container = found
+        key = self.keys[position].replace("/", ".")
+        self._add_references(container)
+        self.inherited += 1
+        choice = cfg.hydra.runtime.choices.get(key)
+        return Part(position, item, key, OmegaConf.select(cfg, key), choice, None)
 
     def _local_part(self, position: int, item: str, override: Override) -> Part | None:
         """Compose the variant with ``item`` at ``position``; its :class:`Part` when it
@@ -209,7 +231,7 @@ class Composer:
         part: not to be modified)."""
         if not parts:
             return self.base
-        if len(parts) == 1:
+        if len(parts) == 1 and parts[0].config is not None:
             return parts[0].config
         cfg = copy.deepcopy(self.base)
         _swap(cfg, parts)

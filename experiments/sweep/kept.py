@@ -1,4 +1,4 @@
-"""Hydra's compositions of a planned sweep, kept for its next plan.
+"""Hydra's compositions of a planned sweep, kept for its next plans.
 
 The sweeper composes a sweep's template job, its variants and its validation jobs with Hydra
 (~0.1 s each: 1.5 s of ``fp6_grid``'s planning). A sweep planned again with everything those
@@ -8,7 +8,14 @@ process: its plan is not remembered as finished) reads them from
 (:func:`experiments.plan.plan_key`: the jobs' overrides, the task config, every config and
 code file, the Hydra and OmegaConf versions) and the master config's Hydra part (launcher,
 sweeper, runtime); anything else composes again. The file is the sweep's own output, read
-with ``pickle`` like the workers read the compositions the sweeper hands them.
+with ``cloudpickle`` like the compositions the sweeper hands its workers.
+
+A sweep planned after changing an axis (another command line) finds no exact match, but the
+last plan of the sweep folder whose variants were composed (its template and compositions:
+``<sweep>/.plan/earlier-<key>.pkl``) serves as an :class:`experiments.sweep.earlier.EarlierPlan`
+when everything a composition depends on besides the jobs' overrides is unchanged
+(:func:`earlier_key`: config and code files, package versions, the config name, the Hydra
+overrides of the command line, the config sources and the working folder).
 """
 
 from __future__ import annotations
@@ -19,9 +26,14 @@ import pickle
 from pathlib import Path
 from typing import Any
 
+import cloudpickle
 from omegaconf import DictConfig, OmegaConf
 
+from experiments.sweep.earlier import EarlierPlan
 from ttc.atomic import atomic_write
+
+#: Packages whose versions the compositions depend on (the launchers' config classes too).
+PACKAGES = ("hydra-core", "omegaconf", "hydra-joblib-launcher", "hydra-submitit-launcher")
 
 #: Folder of the kept compositions, in the sweep folder (the plan's folder).
 KEPT_DIR = ".plan"
@@ -53,5 +65,52 @@ def keep_compositions(sweep_dir: Path, key: str, known: dict[tuple[str, ...], Di
     """Keep ``known`` under ``key`` (written atomically)."""
     path = kept_path(sweep_dir, key)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = pickle.dumps(dict(known))
+    data = cloudpickle.dumps(dict(known))  # plugin classes Hydra loaded twice: by value
+    atomic_write(path, lambda tmp: tmp.write_bytes(data))
+
+
+def earlier_key(config: DictConfig) -> str:
+    """What a sweep's compositions depend on besides its jobs' overrides (module docstring),
+    as a key."""
+    import os  # noqa: PLC0415
+    from importlib import metadata  # noqa: PLC0415
+
+    from experiments.provenance import source_identities  # noqa: PLC0415
+
+    sources = OmegaConf.to_container(config.hydra.runtime.config_sources, resolve=False)
+    extra = tuple(
+        Path(str(source["path"])[len("file://") :])
+        for source in sources
+        if source["provider"] != "hydra" and str(source["path"]).startswith("file://")
+    )
+    versions = []
+    for package in PACKAGES:
+        try:
+            versions.append(metadata.version(package))
+        except metadata.PackageNotFoundError:
+            versions.append(None)
+    parts = [source_identities(extra), versions, str(config.hydra.job.config_name),
+             list(config.hydra.overrides.hydra), sources, os.getcwd()]  # fmt: skip
+    return hashlib.sha256(json.dumps(parts, default=str).encode()).hexdigest()[:24]
+
+
+def earlier_path(sweep_dir: Path, key: str) -> Path:
+    """Where the earlier plan of key ``key`` is kept."""
+    return Path(sweep_dir) / KEPT_DIR / f"earlier-{key}.pkl"
+
+
+def load_earlier(sweep_dir: Path, key: str) -> EarlierPlan | None:
+    """The earlier plan kept under ``key``, if any."""
+    try:
+        earlier: Any = pickle.loads(earlier_path(sweep_dir, key).read_bytes())
+    except Exception:  # missing, partial or from another version
+        return None
+    return earlier if isinstance(earlier, EarlierPlan) else None
+
+
+def keep_earlier(sweep_dir: Path, key: str, earlier: EarlierPlan) -> None:
+    """Keep ``earlier`` under ``key`` for the next plans (written atomically)."""
+    path = earlier_path(sweep_dir, key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = cloudpickle.dumps(earlier)
     atomic_write(path, lambda tmp: tmp.write_bytes(data))

@@ -47,9 +47,17 @@ from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.sweep.compose import Composer, variant_jobs
+from experiments.sweep.earlier import EarlierPlan
 from experiments.sweep.interrupt import exit_interrupted
 from experiments.sweep.jobs import batches, expand
-from experiments.sweep.kept import compositions_key, keep_compositions, load_compositions
+from experiments.sweep.kept import (
+    compositions_key,
+    earlier_key,
+    keep_compositions,
+    keep_earlier,
+    load_compositions,
+    load_earlier,
+)
 
 log = logging.getLogger(__name__)
 
@@ -118,19 +126,22 @@ class SweepSweeper(Sweeper):
             hydra_context=hydra_context, task_function=task_function, config=config
         )
 
-    def _composer(self) -> Composer:
-        """The sweep's composer (its compositions serve validation, planning and the jobs)."""
+    def _composer(self, earlier: EarlierPlan | None = None) -> Composer:
+        """The sweep's composer (its compositions serve validation, planning and the jobs;
+        ``earlier``: the sweep folder's earlier plan, for the first one)."""
         if self.composer is None:
             assert self.config is not None and self.hydra_context is not None
-            self.composer = Composer(self.hydra_context.config_loader, self.config)
+            loader = self.hydra_context.config_loader
+            self.composer = Composer(loader, self.config, earlier=earlier)
         return self.composer
 
     def validate_batch_is_legal(self, batch: Sequence[Sequence[str]]) -> None:
-        """Compose (Hydra) and validate :func:`validation_jobs`."""
+        """Compose and validate :func:`validation_jobs` (the composer's configs: Hydra's
+        composition for a variant it has no part of, so a typo fails with Hydra's message)."""
         composer = self._composer()
         validate = get_method(self.validator) if self.validator else None
         for overrides in validation_jobs(batch):
-            cfg = composer.hydra(overrides)
+            cfg = composer.config(overrides)
             if validate is None:
                 continue
             try:
@@ -190,8 +201,8 @@ class SweepSweeper(Sweeper):
         if plan is None:  # validate, then plan (the launcher's workers start meanwhile)
             if hasattr(self.launcher, "warm_up") and planning.records_missing(sweep_dir, batch):
                 self.launcher.warm_up()
-            composer = self._composer()
-            kept_key = compositions_key(key, self.config)
+            kept_key, reuse_key = compositions_key(key, self.config), earlier_key(self.config)
+            composer = self._composer(load_earlier(sweep_dir, reuse_key))
             composer.known.update(load_compositions(sweep_dir, kept_key))
             made = composer.full_compositions
             self.validate_batch_is_legal(batch)
@@ -200,6 +211,8 @@ class SweepSweeper(Sweeper):
             planning.remember_run_ids(sweep_dir, key, plan.run_ids)
             if composer.full_compositions > made:  # kept for a re-plan (a resumed sweep)
                 keep_compositions(sweep_dir, kept_key, composer.known)
+            if composer.template is not None and not composer.inherited:  # for other plans
+                keep_earlier(sweep_dir, reuse_key, EarlierPlan(composer.template, composer.known))
             if hasattr(self.launcher, "share_compositions"):
                 self.launcher.share_compositions(composer)
         self.run_ids += plan.run_ids

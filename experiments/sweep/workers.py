@@ -39,8 +39,8 @@ class SweepState:
     process and restored once per worker process (each part keyed by its SHA-256).
 
     ``payload``: (Hydra context, master config, task function, singletons); ``shared``:
-    the sweeper's :meth:`Composer.shared` (template, compositions), or empty; ``started``:
-    the folder of the running jobs' markers.
+    the sweeper's :meth:`Composer.shared` (compositions, template, earlier plan), or empty;
+    ``started``: the folder of the running jobs' markers.
     """
 
     key: str
@@ -76,9 +76,9 @@ def worker_state(state: SweepState) -> dict[str, Any]:
         _WORKER.update(key=state.key, hydra_context=hydra_context, master=master,
                        task_function=task_function)  # fmt: skip
     if _WORKER.get("shared_key") != state.shared_key or "composer" not in _WORKER:
-        template, known = pickle.loads(state.shared) if state.shared else (None, {})
+        shared = pickle.loads(state.shared) if state.shared else ()
         loader = _WORKER["hydra_context"].config_loader
-        _WORKER["composer"] = Composer(loader, _WORKER["master"], known, template)
+        _WORKER["composer"] = Composer(loader, _WORKER["master"], *shared)
         _WORKER["shared_key"] = state.shared_key
     return _WORKER
 
