@@ -260,6 +260,15 @@ class Composer:
             cfg.hydra.job.override_dirname = override_dirname(task, naming)
         return cfg
 
+    def shared_config(self, overrides: Sequence[str]) -> DictConfig:
+        """The config of the job with these overrides, to read only: shared with the
+        composer when it is the template's or a variant's (its Hydra keys may be those of
+        the template), else :meth:`config`'s."""
+        parts = self.parts(overrides)
+        if parts is not None and (not parts or (len(parts) == 1 and parts[0].config is not None)):
+            return self._swapped(parts)
+        return self.config(overrides)
+
     def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
         """The :func:`experiments.identity.setting_config` of the job with these overrides;
         entries equal between jobs are the same objects."""

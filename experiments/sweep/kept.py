@@ -39,6 +39,15 @@ PACKAGES = ("hydra-core", "omegaconf", "hydra-joblib-launcher", "hydra-submitit-
 KEPT_DIR = ".plan"
 
 
+def _dumps(value: Any) -> bytes:
+    """``pickle``, or ``cloudpickle`` when a config class does not pickle by reference (Hydra
+    loads plugin modules twice: their config classes are then pickled by value)."""
+    try:
+        return pickle.dumps(value)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return cloudpickle.dumps(value)
+
+
 def compositions_key(plan_key: str, config: DictConfig) -> str:
     """The key of a sweep's compositions: its ``plan_key`` and its master ``config``'s Hydra
     part (unresolved)."""
@@ -65,7 +74,7 @@ def keep_compositions(sweep_dir: Path, key: str, known: dict[tuple[str, ...], Di
     """Keep ``known`` under ``key`` (written atomically)."""
     path = kept_path(sweep_dir, key)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = cloudpickle.dumps(dict(known))  # plugin classes Hydra loaded twice: by value
+    data = _dumps(dict(known))
     atomic_write(path, lambda tmp: tmp.write_bytes(data))
 
 
@@ -112,5 +121,5 @@ def keep_earlier(sweep_dir: Path, key: str, earlier: EarlierPlan) -> None:
     """Keep ``earlier`` under ``key`` for the next plans (written atomically)."""
     path = earlier_path(sweep_dir, key)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = cloudpickle.dumps(earlier)
+    data = _dumps(earlier)
     atomic_write(path, lambda tmp: tmp.write_bytes(data))

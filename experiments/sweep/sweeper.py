@@ -141,7 +141,7 @@ class SweepSweeper(Sweeper):
         composer = self._composer()
         validate = get_method(self.validator) if self.validator else None
         for overrides in validation_jobs(batch):
-            cfg = composer.config(overrides)
+            cfg = composer.shared_config(overrides)
             if validate is None:
                 continue
             try:
@@ -209,10 +209,10 @@ class SweepSweeper(Sweeper):
             limit = max(1, self.max_settings_per_job)
             plan = planning.make_plan(batch, composer, self.config, sweep_dir, limit)
             planning.remember_run_ids(sweep_dir, key, plan.run_ids)
-            if composer.full_compositions > made:  # kept for a re-plan (a resumed sweep)
-                keep_compositions(sweep_dir, kept_key, composer.known)
-            if composer.template is not None and not composer.inherited:  # for other plans
+            if composer.template is not None and not composer.inherited:  # for the next plans
                 keep_earlier(sweep_dir, reuse_key, EarlierPlan(composer.template, composer.known))
+            elif composer.full_compositions > made:  # for a re-plan of this one (resumed)
+                keep_compositions(sweep_dir, kept_key, composer.known)
             if hasattr(self.launcher, "share_compositions"):
                 self.launcher.share_compositions(composer)
         self.run_ids += plan.run_ids
