@@ -11,8 +11,6 @@ that each of their records names (``rows_file``); the merged dataset is the same
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import time
 import traceback
 from pathlib import Path
@@ -20,18 +18,19 @@ from typing import Any
 
 import cv2
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from experiments import progress, store
-from experiments.config import prepared_frame_range, settings_from_config
+from experiments.config import prepared_frame_range
 from experiments.plan import read_plan
 from experiments.records import now, peak_rss_mb, record_head, row_statistics
+from experiments.sweep.compose import core_settings
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_settings
 from ttc.engine.stages import input_files
 from ttc.features.descriptors import InvalidCombinationError
 from ttc.rows import MEMBER
-from ttc.settings import AXES, Settings
+from ttc.settings import AXES
 
 
 def run_batch(cfg: DictConfig, sweep_dir: Path) -> list[dict[str, Any]]:
@@ -77,20 +76,11 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
     cv2.setNumThreads(int(cfg.cv_threads))
     start = time.perf_counter()
     records = [record_head(m["setting"], sweep_dir.name, bool(cfg.cache.enabled)) for m in todo]
-    errors: dict[int, BaseException] = {}
-    settings = []
-    maker = SettingsMaker(todo[0]["setting"])
-    for i, member in enumerate(todo):
-        try:
-            settings.append(maker.make(member["setting"]))
-        except Exception as exc:  # a bad value costs only its setting
-            errors[i] = exc
-            settings.append(None)
-    if not maker.agrees(todo[-1]["setting"], settings[-1]):
-        settings = [
-            maker.full(m["setting"]) if s is not None else None
-            for m, s in zip(todo, settings, strict=True)
-        ]
+    made = core_settings([m["setting"] for m in todo])  # a bad value costs only its setting
+    errors: dict[int, BaseException] = {
+        i: s for i, s in enumerate(made) if isinstance(s, Exception)
+    }
+    settings = [None if isinstance(s, Exception) else s for s in made]
     valid = [i for i, s in enumerate(settings) if s is not None]
     rows = pd.DataFrame()
     try:
@@ -134,49 +124,6 @@ def _statistics(rows: pd.DataFrame) -> dict[str, Any]:
     computed = pd.Series((~cached).sum(axis=1), index=rows.index).groupby(rows[MEMBER]).sum()
     errors = set(rows.loc[rows["error"] != "", MEMBER].tolist())
     return {"computed": computed, "errors": errors}
-
-
-class SettingsMaker:
-    """:func:`settings_from_config` of many settings of one batch, quickly: the first
-    setting's config is composed once, and each other top-level value is converted once (that
-    value set on the first config), then reused by every setting that has it."""
-
-    def __init__(self, first: dict[str, Any]) -> None:
-        self.first = first
-        self.cfg = OmegaConf.create(first)
-        self.base = settings_from_config(self.cfg)
-        self.fields = {f.name for f in dataclasses.fields(self.base)}
-        self.parts: dict[tuple[str, str], Any] = {}
-
-    def full(self, setting: dict[str, Any]) -> Settings:
-        """The slow way: the whole setting composed and converted."""
-        return settings_from_config(OmegaConf.create(setting))
-
-    def make(self, setting: dict[str, Any]) -> Settings:
-        """The core's :class:`Settings` of a setting of the batch."""
-        changes = {}
-        for key, value in setting.items():
-            if value == self.first.get(key):
-                continue
-            if key not in self.fields:
-                return self.full(setting)
-            memo = (key, json.dumps(value, sort_keys=True))
-            if memo not in self.parts:
-                self.cfg[key] = value
-                try:
-                    self.parts[memo] = getattr(settings_from_config(self.cfg), key)
-                finally:
-                    self.cfg[key] = self.first[key]
-            changes[key] = self.parts[memo]
-        return dataclasses.replace(self.base, **changes)
-
-    def agrees(self, setting: dict[str, Any], made: Settings | None) -> bool:
-        """True when the quick way gave the slow way's result for ``setting`` (a conversion
-        that reads several top-level values at once makes them differ)."""
-        try:
-            return made is None or self.full(setting) == made
-        except Exception:
-            return made is None
 
 
 def _outcome(record: dict, error: BaseException | None, n_rows: int, wall_s: float) -> None:

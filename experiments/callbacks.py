@@ -44,6 +44,18 @@ def count_jobs(config: DictConfig) -> int | None:
         return None
 
 
+#: Exit status of a sweep ended by Ctrl-C (128 + SIGINT).
+INTERRUPTED_STATUS = 130
+
+
+def stop_progress() -> None:
+    """Stop the sweep's progress bar, if one runs: its last state is drawn and its line
+    ended (the end of a sweep, or Ctrl-C)."""
+    if _PROGRESS:
+        _PROGRESS.pop("stop").set()
+        _PROGRESS.pop("thread").join(timeout=10)
+
+
 # The progress thread lives at module level: Hydra's launchers pickle the callback objects
 # to send them to workers, and a thread or lock does not pickle.
 _PROGRESS: dict[str, Any] = {}
@@ -96,9 +108,7 @@ class SweepCallback(Callback):
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         """Merge and summarise the sweep; exit 1 when a setting or the merge failed."""
-        if _PROGRESS:
-            _PROGRESS.pop("stop").set()
-            _PROGRESS.pop("thread").join(timeout=10)
+        stop_progress()
         from experiments.collect import summarise_sweep  # noqa: PLC0415 (slow imports)
 
         sweep_dir = Path(config.hydra.sweep.dir)
@@ -114,6 +124,10 @@ class SweepCallback(Callback):
             )
         except (StoreError, OSError) as exc:
             problems.append(f"merge failed, no {sweep_dir}/frames.parquet: {exc}")
+        except KeyboardInterrupt:  # Ctrl-C during the merge: every setting is done
+            print(f"interrupted during the merge: every setting is done; `python -m "
+                  f"experiments.collect {sweep_dir}` merges them", file=sys.stderr)  # fmt: skip
+            sys.exit(INTERRUPTED_STATUS)
         if (failed := outcomes.count("failed")) > 0:
             problems.append(f"{failed} setting(s) failed (listed above); a re-run retries them")
         if problems:

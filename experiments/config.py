@@ -9,46 +9,45 @@ classes made writable, so YAML files and overrides can set their fields.
 
 from __future__ import annotations
 
-import hashlib
-import json
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import MISSING as MISSING_FIELD
+from dataclasses import Field, dataclass, field, fields, make_dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, get_type_hints
 
-import pandas as pd
 from hydra.core.config_store import ConfigStore
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from experiments import datasets, paths
+from experiments.identity import (  # noqa: F401 (also imported from here)
+    NEUTRAL_OPTIONS,
+    SETTING_KEYS,
+    SUBPIXEL_SUFFIX,
+    axis_values,
+    finish_setting,
+    run_id,
+    run_identity,
+    setting_config,
+    setting_entry,
+    setting_hash,
+    with_neutral_axes,
+    with_neutral_options,
+)
 from ttc.features.descriptors import DESCRIPTORS, NO_DESCRIPTOR
 from ttc.features.keypoints import DETECTORS
 from ttc.features.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
-from ttc.features.objects import ObjectDetectorParams
 from ttc.io.frames import PROJECTIONS, recording_frames
-from ttc.settings import AXES, FrameRange, Settings
-from ttc.steps.box_matching import BoxMatchingParams
-from ttc.steps.camera_ttc import CameraTTCParams
-from ttc.steps.fusion import FusionParams
-from ttc.steps.keypoint_filter import KeypointFilterParams
+from ttc.settings import AXIS_TABLE, FrameRange, Settings
 from ttc.steps.lidar import LaneCropParams
-from ttc.steps.lidar_ttc import LidarTTCParams
 
-#: Config groups whose options each pick one parameter class by name.
-NAMED_GROUPS: dict[str, dict[str, type]] = {
-    "detector": DETECTORS,
-    "descriptor": DESCRIPTORS,
-    "matcher": MATCHER_PARAMS,
+#: Config groups whose options each pick one parameter class by name (ttc.settings.AXIS_TABLE).
+NAMED_GROUPS: dict[str, Mapping[str, type]] = {
+    a.name: a.registry for a in AXIS_TABLE if a.registry is not None
 }
 #: Config groups with one parameter class for all their options.
 SINGLE_CLASS_GROUPS: dict[str, type] = {
-    "selector": SelectorParams,
-    "box_matching": BoxMatchingParams,
-    "lidar_ttc": LidarTTCParams,
-    "keypoint_filter": KeypointFilterParams,
-    "camera_ttc": CameraTTCParams,
-    "fusion": FusionParams,
-    "objects": ObjectDetectorParams,
+    a.name: a.params for a in AXIS_TABLE if a.params is not None and a.registry is None
 }
 
 
@@ -94,20 +93,9 @@ class ShowConfig:
 
 
 @dataclass
-class RunConfig:
-    """The root of the configuration (``conf/config.yaml`` fills it)."""
+class RunSettingsConfig:
+    """The root of the configuration after its axes (``conf/config.yaml`` fills it)."""
 
-    detector: Any = MISSING
-    descriptor: Any = MISSING
-    matcher: Any = MISSING
-    selector: Any = MISSING
-    box_matching: Any = MISSING
-    lidar_ttc: Any = MISSING
-    keypoint_filter: Any = MISSING
-    camera_ttc: Any = MISSING
-    fusion: Any = MISSING
-    objects: Any = MISSING
-    dataset: DatasetConfig = field(default_factory=DatasetConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
     cache: CacheConfig = field(default_factory=CacheConfig)
     show: ShowConfig = field(default_factory=ShowConfig)
@@ -117,6 +105,31 @@ class RunConfig:
     force: bool = False  # recompute a run even when its record says complete
     print_rows: int = 20
     batch: str = ""  # set by the sweeper: this job runs the settings of <sweep>/.plan/<batch>.json
+
+
+def _copy(f: Field) -> Field:
+    """A new field with ``f``'s default (a field object belongs to one dataclass)."""
+    if f.default_factory is not MISSING_FIELD:
+        return field(default_factory=f.default_factory)
+    return field(default=f.default)
+
+
+#: The root of the configuration: one field per axis of ttc.settings.AXIS_TABLE (each a config
+#: group: ``dataset`` typed, the others validated by their options' schemas), then the rest.
+RunConfig = make_dataclass(
+    "RunConfig",
+    [
+        (a.name, DatasetConfig, field(default_factory=DatasetConfig))
+        if a.name == "dataset"
+        else (a.name, Any, field(default=MISSING))
+        for a in AXIS_TABLE
+    ]
+    + [
+        (f.name, get_type_hints(RunSettingsConfig)[f.name], _copy(f))
+        for f in fields(RunSettingsConfig)
+    ],
+)
+RunConfig.__module__ = __name__  # pickled by reference, like a class written out
 
 
 def _writable(schema: type) -> DictConfig:
@@ -153,26 +166,61 @@ def _to_object(node: DictConfig, schema: type) -> Any:
     return schema(**OmegaConf.to_container(node, resolve=True))
 
 
+def _params(entry: dict[str, Any], schema: type) -> Any:
+    """The core parameter object of one resolved config entry."""
+    return schema(**entry)
+
+
+def _tracking(matcher: dict[str, Any]) -> bool:
+    """True for a tracking matcher (KLT): no descriptor, no selection."""
+    return matcher["name"] in TRACKERS
+
+
+def _descriptor(descriptor: dict[str, Any], matcher: dict[str, Any]) -> Any:
+    """The descriptor's parameters (none for a tracking matcher)."""
+    if _tracking(matcher):
+        return NO_DESCRIPTOR
+    return _params(descriptor, DESCRIPTORS[descriptor["name"]])
+
+
+def _selector(selector: dict[str, Any], matcher: dict[str, Any]) -> Any:
+    """The selector's parameters (none for a tracking matcher)."""
+    return NO_SELECTOR if _tracking(matcher) else _params(selector, SelectorParams)
+
+
+def _single(group: str) -> tuple[tuple[str, ...], Any]:
+    """The :data:`SETTINGS_FIELDS` entry of a group with one parameter class."""
+    schema = SINGLE_CLASS_GROUPS[group]
+    return (group,), lambda entry: _params(entry, schema)
+
+
+#: Every field of the core's :class:`Settings`: the config entries it is made from (its
+#: converter gets exactly those, resolved, and nothing else) and the converter, in the order
+#: they are converted (the first bad value is the one reported).
+SETTINGS_FIELDS: dict[str, tuple[tuple[str, ...], Any]] = {
+    "matcher": (("matcher",), lambda m: _params(m, MATCHER_PARAMS[m["name"]])),
+    "selector": (("selector", "matcher"), _selector),
+    **{g: _single(g) for g in SINGLE_CLASS_GROUPS if g != "selector"},
+    "descriptor": (("descriptor", "matcher"), _descriptor),
+    "detector": (("detector",), lambda d: _params(d, DETECTORS[d["name"]])),
+    "lane": (("lidar",), lambda lidar: _params(lidar["crop"], LaneCropParams)),
+    "lidar_shrink": (("lidar",), lambda lidar: float(lidar["shrink"])),
+}
+
+
+def settings_field(name: str, entries: dict[str, Any]) -> Any:
+    """One field of the core's :class:`Settings` from the resolved config ``entries`` (a
+    :func:`setting_config` or any dict holding the field's entries; raises ValueError on a
+    bad value)."""
+    sources, convert = SETTINGS_FIELDS[name]
+    return convert(*(entries[key] for key in sources))
+
+
 def settings_from_config(cfg: DictConfig) -> Settings:
     """The core's :class:`Settings` for a composed config (raises ValueError on bad values)."""
-    matcher = _to_object(cfg.matcher, MATCHER_PARAMS[cfg.matcher.name])
-    tracking = matcher.name in TRACKERS  # KLT uses no descriptor and selects nothing
-    objects = {
-        g: NO_SELECTOR if tracking and g == "selector" else _to_object(cfg[g], schema)
-        for g, schema in SINGLE_CLASS_GROUPS.items()
-    }
-    if tracking:
-        descriptor = NO_DESCRIPTOR
-    else:
-        descriptor = _to_object(cfg.descriptor, DESCRIPTORS[cfg.descriptor.name])
-    return Settings(
-        detector=_to_object(cfg.detector, DETECTORS[cfg.detector.name]),
-        descriptor=descriptor,
-        matcher=matcher,
-        **objects,
-        lane=_to_object(cfg.lidar.crop, LaneCropParams),
-        lidar_shrink=float(cfg.lidar.shrink),
-    )
+    keys = {key for sources, _ in SETTINGS_FIELDS.values() for key in sources}
+    entries = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in keys}
+    return Settings(**{name: settings_field(name, entries) for name in SETTINGS_FIELDS})
 
 
 def data_root(cfg: DictConfig) -> Path:
@@ -225,88 +273,6 @@ def prepared_frame_range(cfg: DictConfig) -> FrameRange:
 
         materialise_config(cfg, sequence_dir(cfg))
     return frame_range_from_config(cfg)
-
-
-def setting_config(cfg: DictConfig) -> dict[str, Any]:
-    """The part of the config that determines the numbers (no paths, no launcher)."""
-    setting = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in (*AXES, "lidar")}
-    setting["dataset"] = {k: v for k, v in setting["dataset"].items() if k != "root"}
-    setting["dataset"] = datasets.dataset_identity(setting["dataset"], sequence_dir(cfg))
-    if setting["matcher"]["name"] in TRACKERS:  # no descriptor, no selection: one run id
-        setting["descriptor"] = {"name": NO_DESCRIPTOR.name}
-        setting["selector"] = {"name": NO_SELECTOR.name}
-    return setting
-
-
-def axis_values(setting: dict[str, Any]) -> dict[str, str]:
-    """The value recorded on every axis of a :func:`setting_config`: the option's name
-    (``none`` for the descriptor and selector of ``matcher=klt``), the detector's with
-    ``+subpixel`` when its keypoints are refined, so reports tell the two apart."""
-    values = {axis: str(setting[axis]["name"]) for axis in AXES}
-    if setting["detector"].get("subpixel"):
-        values["detector"] += SUBPIXEL_SUFFIX
-    return values
-
-
-#: Appended to the recorded detector name of a setting with ``detector.subpixel=true``.
-SUBPIXEL_SUFFIX = "+subpixel"
-
-#: Options that leave a setting's numbers as they were before the option existed, at their
-#: "off" value: left out of the run id, so the ids of settings stored before stay the same.
-NEUTRAL_OPTIONS: tuple[tuple[str, str, Any], ...] = (
-    ("detector", "subpixel", False),
-    ("fusion", "name", "none"),
-    ("dataset", "date", ""),
-    ("dataset", "drive", ""),
-    ("dataset", "generator", None),
-)
-
-
-def with_neutral_options(setting: dict[str, Any]) -> dict[str, Any]:
-    """A stored :func:`setting_config` with every :data:`NEUTRAL_OPTIONS` axis it lacks (a run
-    recorded before that axis existed) at its off value, so it composes into
-    :func:`settings_from_config` like a new one."""
-    out = dict(setting)
-    for axis, key, off in NEUTRAL_OPTIONS:
-        if key == "name" and axis not in out:
-            out[axis] = {"name": off}
-    return out
-
-
-def with_neutral_axes(table: pd.DataFrame) -> pd.DataFrame:
-    """``table`` (frames or run records) with the column of every :data:`NEUTRAL_OPTIONS` axis,
-    its off value where a row was recorded before the axis existed."""
-    out = table.copy()
-    for axis, key, off in NEUTRAL_OPTIONS:
-        if key == "name" and not out.empty:
-            out[axis] = out[axis].fillna(off) if axis in out else off
-    return out
-
-
-def run_identity(setting: dict[str, Any]) -> dict[str, Any]:
-    """:func:`setting_config` without the :data:`NEUTRAL_OPTIONS` at their off value (a whole
-    axis goes when its ``name`` is off). Untouched values are the same objects."""
-    out = dict(setting)
-    for axis, key, off in NEUTRAL_OPTIONS:
-        value = out.get(axis)
-        if isinstance(value, dict) and key in value and value[key] == off:
-            if key == "name":
-                del out[axis]
-            else:
-                out[axis] = {k: v for k, v in value.items() if k != key}
-    return out
-
-
-def setting_hash(setting: dict[str, Any]) -> str:
-    """The run id of a :func:`setting_config` (16 hex digits of the SHA-256 of its
-    :func:`run_identity`'s canonical JSON)."""
-    text = json.dumps(run_identity(setting), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def run_id(cfg: DictConfig) -> str:
-    """Hash of :func:`setting_config`: equal configs give equal ids, across machines."""
-    return setting_hash(setting_config(cfg))
 
 
 def missing_data_message(cfg: DictConfig) -> str:

@@ -1,7 +1,7 @@
 """The sweep plan, made by the sweeper before any worker starts.
 
 For every job of a sweep it finds the setting and its run id without composing the job's
-config with Hydra (:class:`SettingPlanner`), then:
+config with Hydra (:class:`experiments.sweep.compose.Composer`), then:
 
 1. drops settings whose run is complete (resume before launch; ``force=true`` keeps them);
 2. records the settings of an invalid detector × descriptor pair as ``skipped``, checking
@@ -29,117 +29,19 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import progress, store
-from experiments.config import run_identity, setting_config
 from experiments.finished import plan_line
+from experiments.identity import setting_hash
 from experiments.records import now, peak_rss_mb, record_head
+from experiments.sweep.compose import Composer
 from ttc.features.descriptors import check_pair
 from ttc.features.matching import TRACKERS
+from ttc.settings import axes_with_role
 
 PLAN_DIR = ".plan"
 #: Axes whose values share the cached stages: settings differing only in these form a batch.
-BATCH_FREE_AXES = ("matcher", "selector", "box_matching", "lidar_ttc", "keypoint_filter",
-                   "camera_ttc", "fusion")  # fmt: skip
+BATCH_FREE_AXES = axes_with_role("pair_stage", "step", "fusion")
 #: Most settings in one batch (bounds a worker's memory: a batch's rows are held until saved).
 MAX_BATCH = 200
-
-
-class Compositions:
-    """Hydra's compositions of job configs, each made once (the sweeper validates the same
-    configs the planner reads)."""
-
-    def __init__(self, loader: Any, master: DictConfig) -> None:
-        self.loader, self.master = loader, master
-        self.memo: dict[tuple[str, ...], DictConfig] = {}
-
-    def full(self, overrides: Sequence[str]) -> DictConfig:
-        """The config Hydra composes for a job with these overrides."""
-        key = tuple(overrides)
-        if key not in self.memo:
-            self.memo[key] = self.loader.load_sweep_config(self.master, list(overrides))
-        return self.memo[key]
-
-
-def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
-    """The first job and, for every other ``key=value`` at a position, the first job with that
-    value there (what :class:`SettingPlanner` composes); jobs of another length as they are."""
-    if not jobs:
-        return []
-    first = list(jobs[0])
-    out, seen = [first], set()
-    for job in jobs:
-        if len(job) != len(first):
-            out.append(list(job))
-            continue
-        for position, item in enumerate(job):
-            if item != first[position] and (position, item) not in seen:
-                seen.add((position, item))
-                out.append([*first[:position], item, *first[position + 1 :]])
-    return out
-
-
-class SettingPlanner:
-    """The :func:`setting_config` of every job of a sweep, from Hydra's composition of a
-    template job and of one variant per distinct ``key=value`` (:func:`variant_jobs`): a
-    job's setting is the template's with the top-level entries its values change replaced.
-    An override that changes more than its own entry, or two that change one entry, go
-    through Hydra's full composition."""
-
-    def __init__(self, composer: Compositions) -> None:
-        self.composer = composer
-        self.template: list[str] | None = None
-        self.base: dict[str, Any] = {}
-        self.parts: dict[tuple[int, str], dict[str, Any] | None] = {}
-        self.texts: dict[int, tuple[Any, str]] = {}
-
-    def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
-        """The setting of the job with these overrides."""
-        overrides = list(overrides)
-        if self.template is None:
-            self.template = overrides
-            self.base = setting_config(self.composer.full(overrides))
-        if len(overrides) != len(self.template):
-            return setting_config(self.composer.full(overrides))
-        setting = dict(self.base)
-        touched: set[str] = set()
-        for position, item in enumerate(overrides):
-            if item == self.template[position]:
-                continue
-            part = self._part(position, item)
-            if part is None or touched & part.keys():
-                return setting_config(self.composer.full(overrides))
-            touched |= part.keys()
-            setting.update(part)
-        return setting
-
-    def run_id(self, setting: dict[str, Any]) -> str:
-        """:func:`setting_hash` of a setting this planner made: the canonical JSON is
-        assembled from the memorised JSON of its top-level values (they are shared objects),
-        without the options at their off value (:func:`run_identity`)."""
-        setting = run_identity(setting)
-        parts = []
-        for key in sorted(setting):
-            value = setting[key]
-            text = self.texts.get(id(value))
-            if text is None or text[0] is not value:
-                text = (value, json.dumps(value, sort_keys=True, separators=(",", ":")))
-                self.texts[id(value)] = text
-            parts.append(json.dumps(key) + ":" + text[1])
-        return hashlib.sha256(("{" + ",".join(parts) + "}").encode()).hexdigest()[:16]
-
-    def _part(self, position: int, item: str) -> dict[str, Any] | None:
-        """The setting entries a template variant with ``item`` at ``position`` changes, or
-        None when that variant changes more than the override's own key."""
-        memo = (position, item)
-        if memo not in self.parts:
-            self.parts[memo] = None
-            variant = list(self.template or [])
-            variant[position] = item
-            key = item.split("=", 1)[0].lstrip("+~").split("@")[0].replace("/", ".")
-            changed = setting_config(self.composer.full(variant))
-            diff = {k: v for k, v in changed.items() if self.base.get(k) != v}
-            if set(diff) <= {key.split(".")[0]} and changed.keys() == self.base.keys():
-                self.parts[memo] = diff
-        return self.parts[memo]
 
 
 @dataclass
@@ -196,7 +98,7 @@ def read_plan(sweep_dir: Path, batch_id: str) -> dict[str, Any]:
 
 def make_plan(
     jobs: Sequence[Sequence[str]],
-    planner: SettingPlanner,
+    composer: Composer,
     config: DictConfig,
     sweep_dir: Path,
     max_batch: int = MAX_BATCH,
@@ -206,9 +108,10 @@ def make_plan(
     batches' plan files."""
     plan = Plan()
     members: dict[str, dict[str, Any]] = {}
+    texts: dict[int, tuple[Any, str]] = {}  # the JSON of the settings' shared values
     for overrides in jobs:
-        setting = planner.setting(overrides)
-        rid = planner.run_id(setting)
+        setting = composer.setting(overrides)
+        rid = setting_hash(setting, texts)
         members.setdefault(rid, {"run_id": rid, "overrides": list(overrides), "setting": setting})
     plan.settings = len(members)
     checks, force = store.Checks(), bool(config.force)

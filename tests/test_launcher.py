@@ -1,4 +1,5 @@
-"""The launcher's job composer gives every job exactly the config Hydra composes for it."""
+"""The launcher's workers get every job's config from the sweep's composer, exactly as Hydra
+composes it; a dead worker is named; the workers end with the sweep."""
 
 from __future__ import annotations
 
@@ -12,9 +13,9 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from experiments.config import register_configs
-from experiments.plan import variant_jobs
-from hydra_plugins.ttc_launcher import JobComposer, shut_down_workers, worker_death
-from hydra_plugins.ttc_sweeper import group_combination_jobs, representative_jobs
+from experiments.sweep.compose import Composer, variant_jobs
+from experiments.sweep.sweeper import group_combination_jobs, validation_jobs
+from experiments.sweep.workers import shut_down_workers, worker_death
 from tests.conftest import PROJECT_ROOT
 
 
@@ -45,9 +46,9 @@ def test_every_job_gets_hydras_config(loader_and_master) -> None:
                                                 ("bf", "flann"), ("kitti_0_18", "kitti_0_77"),
                                                 (0.1, 0.2))
     ]  # fmt: skip
-    composer = JobComposer(loader, master)
+    composer = Composer(loader, master)
     for job in jobs:
-        assert comparable(composer.compose(job)) == comparable(
+        assert comparable(composer.config(job)) == comparable(
             loader.load_sweep_config(master, job)
         ), job
     # the template plus one variant per further value of each swept key; the rest are copies
@@ -63,12 +64,12 @@ def test_jobs_composed_from_the_sweepers_compositions(loader_and_master) -> None
                                              ("bf", "flann"))]  # fmt: skip
     known = {tuple(v): loader.load_sweep_config(master, v) for v in variant_jobs(jobs)}
     assert len(known) == 1 + 2 + 1 + 1
-    composer = JobComposer(loader, master, known, template=jobs[0])
+    composer = Composer(loader, master, known, template=jobs[0])
     for job in jobs[::-1]:
-        cfg = composer.compose(job)
+        cfg = composer.config(job)
         assert comparable(cfg) == comparable(loader.load_sweep_config(master, job)), job
         cfg.hydra.job.num = 7  # the launcher sets it on the job's config: not on a shared one
-    batch = composer.compose([*jobs[3], "batch=batch-0123"])
+    batch = composer.config([*jobs[3], "batch=batch-0123"])
     assert batch.batch == "batch-0123" and batch.hydra.overrides.task[-1] == "batch=batch-0123"
     assert composer.full_compositions == 0
     assert all(OmegaConf.is_missing(c.hydra.job, "num") for c in known.values())
@@ -76,19 +77,32 @@ def test_jobs_composed_from_the_sweepers_compositions(loader_and_master) -> None
 
 def test_a_value_it_cannot_prove_local_goes_through_hydra(loader_and_master) -> None:
     loader, master = loader_and_master
-    composer = JobComposer(loader, master)
+    composer = Composer(loader, master)
     jobs = [["+experiment=fp6_grid", f"+extra={v}"] for v in (1, 2, 3)]  # additions, not changes
     for job in jobs:
-        assert comparable(composer.compose(job)) == comparable(
-            loader.load_sweep_config(master, job)
-        )
+        assert comparable(composer.config(job)) == comparable(loader.load_sweep_config(master, job))
     assert composer.full_compositions == 3
+
+
+def test_overlapping_keys_go_through_hydra(loader_and_master) -> None:
+    """A group and a value under it, both differing from the template: the order Hydra
+    applies them in is not the job's order, so the job is composed by Hydra."""
+    loader, master = loader_and_master
+    template = ["dataset.last=5", "dataset=kitti_0_18"]
+    composer = Composer(loader, master, template=template)
+    for job in (["dataset.last=6", "dataset=kitti_0_77"], ["dataset.last=6", "dataset=kitti_0_18"],
+                ["dataset.last=5", "dataset=kitti_0_77"]):  # fmt: skip
+        assert comparable(composer.config(job)) == comparable(
+            loader.load_sweep_config(master, job)
+        ), job
+        assert composer.setting(job)["dataset"]["last"] == int(job[0].split("=")[1])
+    assert composer.parts(["dataset.last=6", "dataset=kitti_0_77"]) is None
 
 
 def test_validation_jobs_cover_every_value_once_per_key() -> None:
     batch = [list(j) for j in itertools.product(("d=a", "d=b", "d=c"), ("e=1", "e=2"), ("m=x",))]
-    jobs = representative_jobs(batch)
-    assert len(jobs) == 3
+    jobs = variant_jobs(batch)
+    assert len(jobs) == 1 + 2 + 1  # the template, then one variant per further value
     for position in range(3):
         assert {job[position] for job in jobs} == {job[position] for job in batch}
 
@@ -101,9 +115,10 @@ def test_every_combination_of_the_dataset_overrides_is_validated() -> None:
     assert len(jobs) == 4  # (first, last) pairs; the detector stays the first job's
     assert {tuple(j[1:]) for j in jobs} == {tuple(j[1:]) for j in batch}
     assert {j[0] for j in jobs} == {"detector=fast"}
-    # the cheap validation misses the (3, 2) pair; this one holds it
-    assert ["detector=fast", "dataset.first=3", "dataset.last=2"] not in representative_jobs(batch)
-    assert ["detector=fast", "dataset.first=3", "dataset.last=2"] in jobs
+    # the template and its variants miss the (3, 5) pair; the validation holds it
+    assert ["detector=fast", "dataset.first=3", "dataset.last=5"] not in variant_jobs(batch)
+    assert ["detector=fast", "dataset.first=3", "dataset.last=5"] in jobs
+    assert ["detector=fast", "dataset.first=3", "dataset.last=5"] in validation_jobs(batch)
 
 
 def test_worker_death_names_the_signal() -> None:
@@ -138,3 +153,23 @@ def test_worker_processes_end_with_the_sweep() -> None:
     _, alive = psutil.wait_procs(procs, timeout=10)
     assert not alive  # none still alive after 10 s
     assert not pids & {c.pid for c in psutil.Process().children(recursive=True)}
+
+
+@pytest.mark.parametrize("max_batch_size", [None, 5])
+def test_the_jobs_are_hydras_basic_sweepers(loader_and_master, max_batch_size) -> None:
+    """Sweep overrides expand into the jobs, in the order and batches, of Hydra's basic
+    sweeper (params first, a later override of a key taking its place; glob and range)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper  # noqa: PLC0415
+    from hydra.core.override_parser.overrides_parser import OverridesParser  # noqa: PLC0415
+
+    from experiments.sweep.jobs import batches, expand  # noqa: PLC0415
+
+    loader, _ = loader_and_master
+    parser = OverridesParser.create(config_loader=loader)
+    for args in (["detector=fast,orb", "matcher=glob(*)", "dataset.last=range(3,5)"],
+                 ["descriptor=brief,orb", "selector=nn", "descriptor=sift", "+experiment=x"],
+                 ["lidar_ttc=glob(*,exclude=cluster)", "detector=fast,orb", "lidar.shrink=0.2"],
+                 []):  # fmt: skip
+        overrides = parser.parse_overrides(args)
+        expected = BasicSweeper.split_arguments(overrides, max_batch_size)
+        assert batches(expand(overrides), max_batch_size) == expected, args

@@ -1,0 +1,80 @@
+"""Plain-container helpers of the sweep's composer: what two compositions must have equal to
+differ only under some keys, the top-level keys an entry's interpolations reach, and Hydra's
+``override_dirname`` rule."""
+
+from __future__ import annotations
+
+import copy
+import re
+from collections.abc import Sequence
+from typing import Any
+
+from hydra.core.override_parser.types import Override
+from omegaconf import DictConfig
+
+#: Keys of the Hydra node that a job's overrides change (besides ``runtime.choices``).
+JOB_KEYS = ("overrides.task", "job.override_dirname", "job.id", "job.num")
+#: Any top-level key (a relative interpolation that leaves its entry).
+ANY_KEY = "*"
+#: Resolvers that read the config by a key given as a plain string (not an interpolation).
+CONFIG_READING_RESOLVERS = ("oc.select", "oc.dict.keys", "oc.dict.values")
+#: ``${path}`` (a reference) or ``${name:`` (a resolver, whose arguments match on their own).
+_INTERPOLATION = re.compile(r"\$\{\s*([^${}:\s]*)\s*([:}])")
+
+
+def _drop(container: dict[str, Any], dotted: str) -> None:
+    """Remove ``dotted`` (a.b.c) from nested dicts, if present."""
+    *parents, leaf = dotted.split(".")
+    for part in parents:
+        container = container.get(part)
+        if not isinstance(container, dict):
+            return
+    container.pop(leaf, None)
+
+
+def comparable(container: dict[str, Any], keys: Sequence[str]) -> dict[str, Any]:
+    """A copy of a config's plain containers (interpolations unresolved) without ``keys``
+    (dotted), their group choices and the job-specific Hydra keys: what two compositions
+    that differ only under ``keys`` have equal."""
+    out = copy.deepcopy(container)
+    for key in keys:
+        _drop(out, key)
+        out["hydra"]["runtime"]["choices"].pop(key, None)
+    for job_key in JOB_KEYS:
+        _drop(out["hydra"], job_key)
+    return out
+
+
+def references(value: Any, depth: int = 0) -> set[str]:
+    """The top-level keys that the interpolations inside ``value`` (an unresolved top-level
+    entry, or a part of one ``depth`` levels down) refer to; :data:`ANY_KEY` for a relative
+    one that leaves the entry."""
+    if isinstance(value, dict):
+        return set().union(*(references(v, depth + 1) for v in value.values()))
+    if isinstance(value, list):
+        return set().union(*(references(v, depth + 1) for v in value))
+    found: set[str] = set()
+    if isinstance(value, str) and "${" in value:
+        for path, end in _INTERPOLATION.findall(value):
+            dots = len(path) - len(path.lstrip("."))
+            if end == ":":
+                if path in CONFIG_READING_RESOLVERS:
+                    found.add(ANY_KEY)
+                continue
+            if dots == 0:
+                found.add(path.split(".")[0].split("[")[0])
+            elif dots > depth:
+                found.add(ANY_KEY)
+    return found
+
+
+def override_dirname(task: Sequence[Override], naming: DictConfig) -> str:
+    """``hydra.job.override_dirname`` of a job's task overrides (Hydra's rule)."""
+    excluded = set(naming.exclude_keys)
+    lines = sorted(o.input_line for o in task if o.key_or_group not in excluded)
+    return re.sub(pattern="[=]", repl=naming.kv_sep, string=naming.item_sep.join(lines))
+
+
+def overlap(a: str, b: str) -> bool:
+    """True when dotted keys ``a`` and ``b`` are one or one is under the other."""
+    return a == b or a.startswith(b + ".") or b.startswith(a + ".")

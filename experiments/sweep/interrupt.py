@@ -1,0 +1,46 @@
+"""What Ctrl-C says: a sweep interrupted (SIGINT to its process group) ends at once with one
+line, how many of its settings are done and that a re-run resumes the rest, and exit status
+130 (128 + SIGINT, the shell's convention), instead of a ``KeyboardInterrupt`` traceback from
+inside joblib. The settings finished before it keep their records; a re-run of the same
+command resumes them (the planner launches no job for a complete run)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+from experiments.callbacks import INTERRUPTED_STATUS, stop_progress
+from experiments.store import RUNS_DIR
+
+
+def done_count(sweep_dir: Path, run_ids: Sequence[str]) -> int:
+    """How many of ``run_ids`` have a run record in the sweep folder (a record is written
+    last, when the run is complete)."""
+    try:
+        recorded = set(os.listdir(Path(sweep_dir) / RUNS_DIR))
+    except OSError:
+        return 0
+    return sum(f"{rid}.json" in recorded for rid in set(run_ids))
+
+
+def interrupted_line(sweep_dir: Path, run_ids: Sequence[str]) -> str:
+    """The one line an interrupted sweep prints."""
+    total = len(set(run_ids))
+    if not total:
+        return f"interrupted before the sweep was planned: nothing launched in {sweep_dir}"
+    done = done_count(sweep_dir, run_ids)
+    return (
+        f"interrupted: {done} of {total} settings done (kept in {sweep_dir}); "
+        f"re-running the same command resumes the other {total - done}"
+    )
+
+
+def exit_interrupted(sweep_dir: Path, run_ids: Sequence[str]) -> NoReturn:
+    """End the progress bar, print :func:`interrupted_line` and exit with status 130."""
+    stop_progress()
+    sys.stdout.flush()
+    print(interrupted_line(sweep_dir, run_ids), file=sys.stderr, flush=True)
+    raise SystemExit(INTERRUPTED_STATUS)
