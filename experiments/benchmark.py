@@ -22,8 +22,8 @@ Figures (all wall-clock seconds on this machine, written to a JSON report):
   job and after its last (start-up, planning, merge, summary: ``lead_in_s + tail_s`` of the
   breakdowns);
 * ``nocache_s`` (c): the same sweep with ``cache.enabled=false``;
-* ``warm_filter_s`` (d): a re-run after changing only ``keypoint_filter`` (new settings, all
-  expensive stages from the warm cache);
+* ``warm_filter_s`` (d): a re-run after changing only ``keypoint_filter``, into the same sweep
+  folder as a user's changed command goes (new settings, expensive stages from the cache);
 * ``rerun_s``: the finished ``fp6_grid`` command again (nothing to compute);
 * ``small_cold_s`` / ``small_rerun_s``: 8 settings on frames 0-3, cold, then again;
 * ``grand_cold_s``, ``grand_warm_s``: ``+experiment=grand`` on frames 0-18 (28,000 valid
@@ -57,7 +57,7 @@ from typing import Any
 import pandas as pd
 
 from experiments import store
-from experiments.floor import compute_floor, steps_floor_ms
+from experiments.floor import compute_floor, hydra_compose_seconds, steps_floor_ms
 from experiments.paths import PROJECT_ROOT, default_data_root
 from experiments.provenance import code_version, machine, package_versions
 from ttc.features.descriptors import RUBRIC_DESCRIPTORS
@@ -180,10 +180,12 @@ def sweep_breakdown(runs: pd.DataFrame, cores: int) -> dict[str, float]:
     end (the rest of the span is per-job launcher work: Hydra's ``run_job``, the job's config,
     and workers waiting for the last jobs); from :func:`timed_sweep`'s runs, ``lead_in_s`` the
     command's start to the first job's (start-up, validation and planning) and ``tail_s`` the
-    last job's end to the command's (merge and summary). Jobs are the computed ones (settings
-    skipped at planning have records without work)."""
+    last job's end to the command's (merge and summary). Jobs: the computed ones, this command's."""
     computed = runs[runs["status"] != "skipped"] if "status" in runs else runs
     computed = computed if len(computed) else runs
+    if "started" in runs.attrs:
+        began = pd.to_datetime(computed["start"]).map(pd.Timestamp.timestamp)
+        computed = computed[began >= runs.attrs["started"]]
     start, end = pd.to_datetime(computed["start"]), pd.to_datetime(computed["end"])
     out = {
         "jobs_s": float(computed["wall_s"].sum()) / cores,
@@ -194,29 +196,6 @@ def sweep_breakdown(runs: pd.DataFrame, cores: int) -> dict[str, float]:
         out["lead_in_s"] = start.min().timestamp() - runs.attrs["started"]
         out["tail_s"] = runs.attrs["ended"] - end.max().timestamp()
     return out
-
-
-def hydra_compose_seconds(repeats: int = 5) -> float:
-    """Median seconds Hydra takes to compose one job's config of ``fp6_grid`` (what the stock
-    joblib launcher does in the worker before every job)."""
-    from hydra import compose, initialize_config_dir  # noqa: PLC0415
-    from hydra.core.global_hydra import GlobalHydra  # noqa: PLC0415
-
-    from experiments.config import register_configs  # noqa: PLC0415
-
-    register_configs()
-    job = ["detector=orb", "descriptor=brisk", "matcher=flann", "selector=nn"]
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        master = compose(
-            config_name="config", overrides=["+experiment=fp6_grid"], return_hydra_config=True
-        )
-        loader = GlobalHydra.instance().config_loader()
-        times = []
-        for _ in range(repeats):
-            start = time.perf_counter()
-            loader.load_sweep_config(master, job)
-            times.append(time.perf_counter() - start)
-    return float(sorted(times)[len(times) // 2])
 
 
 def fp6_figures(
@@ -231,7 +210,7 @@ def fp6_figures(
     report["peak_rss_mb"] = float(runs["peak_rss_mb"].max())
     report["rerun_s"], _ = timed_sweep(sweep_args(grid, "cold"), results, cache)
 
-    warm_args = [*sweep_args(grid, "warm_filter"), "keypoint_filter=zscore"]
+    warm_args = [*sweep_args(grid, "cold"), "keypoint_filter=zscore"]
     report["warm_filter_s"], warm_runs = timed_sweep(warm_args, results, cache)
     report["warm_filter_breakdown"] = sweep_breakdown(warm_runs, cores)
     report["cold_breakdown"] = sweep_breakdown(runs, cores)

@@ -8,7 +8,9 @@ cores).
   the NN and the kNN setting);
 * :func:`steps_floor_ms`: FP.1–FP.4 at their shared minimum: every setting of the grid in one
   batch of the engine over the warm stage cache, less the time that batch spends reading the
-  cache (each group's stream alone).
+  cache (each group's stream alone);
+* :func:`hydra_compose_seconds`: what one Hydra composition of a job costs (the per-job cost
+  the stock launcher pays and the composer avoids).
 """
 
 from __future__ import annotations
@@ -134,3 +136,26 @@ def steps_floor_ms(sequence_dir: Path, grid: dict[str, Any], cache_dir: Path) ->
         for _ in stream(first, frames, cache, frames.indices):
             pass
     return batch_ms - 1e3 * (time.perf_counter() - start)
+
+
+def hydra_compose_seconds(repeats: int = 5) -> float:
+    """Median seconds Hydra takes to compose one job's config of ``fp6_grid`` (what the stock
+    joblib launcher does in the worker before every job)."""
+    from hydra import compose, initialize_config_dir  # noqa: PLC0415
+    from hydra.core.global_hydra import GlobalHydra  # noqa: PLC0415
+
+    from experiments.config import register_configs  # noqa: PLC0415
+
+    register_configs()
+    job = ["detector=orb", "descriptor=brisk", "matcher=flann", "selector=nn"]
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        master = compose(
+            config_name="config", overrides=["+experiment=fp6_grid"], return_hydra_config=True
+        )
+        loader = GlobalHydra.instance().config_loader()
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            loader.load_sweep_config(master, job)
+            times.append(time.perf_counter() - start)
+    return float(sorted(times)[len(times) // 2])
