@@ -312,13 +312,17 @@ def timestamps_file(sequence_dir: Path | str) -> Path | None:
 #: a tenth of the 10 Hz period. One dt serves the lidar and the camera TTC of a pair, so
 #: clocks further apart would scale one of them silently by more than 10 %.
 CLOCK_TOLERANCE_S = 0.01
+#: A blank line of a ``timestamps.txt`` (a frame without this sensor's data), in nanoseconds.
+MISSING_NS = np.iinfo(np.int64).min
 
 
 def _read_times_ns(path: Path) -> tuple[np.ndarray, list[str]]:
-    """Nanoseconds since 1970 of every line of one KITTI ``timestamps.txt`` and its lines.
+    """Nanoseconds since 1970 of every line of one KITTI ``timestamps.txt`` and its lines;
+    a blank line (a frame KITTI published without this sensor's data, e.g. drive 0009's
+    frames 177–180) is :data:`MISSING_NS`.
 
     Raises :class:`FrameDataError` naming the file and line for a malformed line and for
-    times that are not strictly increasing.
+    times that are not strictly increasing (blank lines skipped).
     """
     try:
         lines = path.read_text().splitlines()
@@ -328,14 +332,21 @@ def _read_times_ns(path: Path) -> tuple[np.ndarray, list[str]]:
         lines.pop()
     if not lines:
         raise FrameDataError(path, "no timestamps")
-    ns = [_timestamp_ns(line, path, number) for number, line in enumerate(lines, start=1)]
-    for number in range(1, len(ns)):
-        if ns[number] <= ns[number - 1]:
+    ns = [
+        _timestamp_ns(line, path, number) if line.strip() else MISSING_NS
+        for number, line in enumerate(lines, start=1)
+    ]
+    last = None  # index of the previous present line
+    for number in range(len(ns)):
+        if ns[number] == MISSING_NS:
+            continue
+        if last is not None and ns[number] <= ns[last]:
             raise FrameDataError(
                 path,
                 f"line {number + 1}: time {lines[number].strip()!r} is not after line "
-                f"{number}'s {lines[number - 1].strip()!r} (times must strictly increase)",
+                f"{last + 1}'s {lines[last].strip()!r} (times must strictly increase)",
             )
+        last = number
     return np.array(ns, dtype=np.int64), lines
 
 
@@ -348,7 +359,8 @@ def check_clocks_agree(lidar: Path, lidar_ns: np.ndarray, camera: Path, camera_n
             camera, f"{len(camera_ns)} timestamps, but {lidar} has {len(lidar_ns)} (one per frame)"
         )
     gap = np.abs(np.diff(camera_ns) - np.diff(lidar_ns)) / 1e9
-    bad = np.flatnonzero(gap > CLOCK_TOLERANCE_S)
+    present = (camera_ns != MISSING_NS) & (lidar_ns != MISSING_NS)
+    bad = np.flatnonzero((gap > CLOCK_TOLERANCE_S) & present[1:] & present[:-1])
     if bad.size:
         k = int(bad[0]) + 1  # frame k: the pair (k - 1, k), line k + 1
         raise FrameDataError(
@@ -366,7 +378,9 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
     When both files exist, both are read and must agree (:func:`check_clocks_agree`: as many
     lines, every pair's intervals within :data:`CLOCK_TOLERANCE_S`); the lidar's times are
     returned (KITTI triggers the camera from the lidar's rotation). When one is missing, the
-    other alone is used. Raises :class:`FrameDataError` naming the file and line for a
+    other alone is used. A blank line is a missing frame: its time is NaN (its pairs become
+    frame errors, :func:`missing_time_errors`), and the times count from the first frame that
+    has one. Raises :class:`FrameDataError` naming the file and line for a
     malformed line, times that are not strictly increasing, and clocks that disagree.
     Values are rounded to the nanosecond of the file.
     """
@@ -378,7 +392,26 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
     if len(paths) == 2:
         check_clocks_agree(paths[0], clocks[0], paths[1], clocks[1])
     ns = clocks[0]
-    return (ns - ns[0]) / 1e9
+    present = ns != MISSING_NS
+    origin = ns[np.argmax(present)]
+    seconds = (np.where(present, ns, origin) - origin) / 1e9
+    seconds[~present] = np.nan
+    return seconds
+
+
+def missing_time_errors(sequence_dir: Path | str, indices: list[int]) -> dict[int, Exception]:
+    """A :class:`FrameDataError` for each frame of ``indices`` whose line in the recording's
+    timestamps file (:func:`timestamps_file`) is blank; the pairs of such a frame become
+    ``frame_error`` rows. Empty when the recording has no timestamps."""
+    times = read_frame_times(sequence_dir)
+    if times is None:
+        return {}
+    path = timestamps_file(sequence_dir)
+    return {
+        i: FrameDataError(path, f"line {i + 1}: blank timestamp: frame {i} was not recorded")
+        for i in indices
+        if i < len(times) and np.isnan(times[i])
+    }
 
 
 def pair_interval(times: np.ndarray | None, prev: int, curr: int, step: int = 1) -> float:

@@ -42,6 +42,7 @@ from ttc.frames import (
     file_identity,
     frame_files,
     frame_pairs,
+    missing_time_errors,
     read_image,
     read_lidar_scan,
 )
@@ -280,11 +281,12 @@ def stream(
 
     Cooperative fill within a chunk: per-frame stages first, then the pairs ending in the
     chunk; entries another worker is computing right now are deferred (see
-    :meth:`StageCache.resolve`). After a chunk only its last frame's data is kept.
+    :meth:`StageCache.resolve`). After a chunk only its last frame's data is kept. A frame
+    with a blank timestamp line is broken from the start (:func:`ttc.frames.missing_time_errors`).
     """
     stages = FrameStages(settings, frames, cache)
     per_frame: dict[str, dict[int, Lookup]] = {name: {} for name in PER_FRAME_STAGES}
-    broken: dict[int, Exception] = {}
+    broken: dict[int, Exception] = missing_time_errors(frames.sequence_dir, indices)
     all_pairs = frame_pairs(indices, frames.pairing)
     for start in range(0, len(indices), CHUNK_FRAMES):
         todo = indices[start : start + CHUNK_FRAMES]
