@@ -29,6 +29,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from ttc import kitti_odometry
+from ttc.frame_errors import FrameDataError
+
 IMAGE_DIR = Path("image_02") / "data"
 LIDAR_DIR = Path("velodyne_points") / "data"
 CAM_TO_CAM = "calib_cam_to_cam.txt"
@@ -36,15 +39,6 @@ VELO_TO_CAM = "calib_velo_to_cam.txt"
 PROJECTIONS = ("P_rect_02", "P_rect_00")
 LIDAR_RECORD_BYTES = 16  # float32 x, y, z, reflectance
 SENSOR_RATE_HZ = 10.0
-
-
-class FrameDataError(ValueError):
-    """An input file is missing or malformed; ``path`` names it."""
-
-    def __init__(self, path: Path | str, problem: str) -> None:
-        self.path = Path(path)
-        self.problem = problem
-        super().__init__(f"{self.path}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -152,10 +146,16 @@ def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") ->
     """Read both calibration files of a recording.
 
     ``projection="P_rect_02"`` is correct for image_02; ``"P_rect_00"`` reproduces the Udacity
-    C++ starter (a shift of ≈ 45 px / z[m] in u).
+    C++ starter (a shift of ≈ 45 px / z[m] in u). A KITTI-odometry sequence's ``calib.txt``
+    is read by :func:`ttc.kitti_odometry.read_calibration` (``P2`` / ``P0`` and ``Tr``, no
+    rectifying rotation).
     """
     if projection not in PROJECTIONS:
         raise ValueError(f"projection must be one of {PROJECTIONS}, got {projection!r}")
+    if kitti_odometry.is_odometry_sequence(sequence_dir):  # calib.txt: P2 · Tr
+        p_rect, velo_to_cam = kitti_odometry.read_calibration(sequence_dir, projection)
+        size = kitti_odometry.image_size(sequence_dir)
+        return Calibration(p_rect, np.eye(3), velo_to_cam, size, projection)
     sequence_dir = calibration_dir(sequence_dir)
     cam_path, velo_path = sequence_dir / CAM_TO_CAM, sequence_dir / VELO_TO_CAM
     cam = _read_calibration_file(cam_path)
@@ -225,8 +225,12 @@ class FrameFiles:
 
 
 def frame_files(sequence_dir: Path | str, index: int) -> FrameFiles:
-    """The image and scan paths of frame ``index`` (10-digit zero-padded names)."""
+    """The image and scan paths of frame ``index`` (10-digit zero-padded names; a KITTI-odometry
+    sequence's 6-digit ``image_2/`` and ``velodyne/`` names, :mod:`ttc.kitti_odometry`)."""
     sequence_dir = Path(sequence_dir)
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        image = kitti_odometry.image_path(sequence_dir, index)
+        return FrameFiles(index, image, kitti_odometry.scan_path(sequence_dir, index))
     stem = f"{index:010d}"
     return FrameFiles(
         index=index,
@@ -251,8 +255,11 @@ def file_identity(path: Path | str) -> tuple[str, int, int]:
 
 
 def recording_frames(sequence_dir: Path | str) -> list[int]:
-    """Indices of the frames a recording holds (an image or a scan named ``NNNNNNNNNN``)."""
+    """Indices of the frames a recording holds (an image or a scan named ``NNNNNNNNNN``, or
+    ``NNNNNN`` in a KITTI-odometry sequence)."""
     sequence_dir = Path(sequence_dir)
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        return kitti_odometry.frames_on_disk(sequence_dir)
     found: set[int] = set()
     for folder, suffix in ((IMAGE_DIR, ".png"), (LIDAR_DIR, ".bin")):
         with contextlib.suppress(FileNotFoundError, NotADirectoryError):
@@ -301,7 +308,11 @@ def _timestamp_ns(line: str, path: Path, number: int) -> int:
 
 
 def timestamps_file(sequence_dir: Path | str) -> Path | None:
-    """The timestamps file :func:`read_frame_times` takes dt from (lidar preferred), or None."""
+    """The timestamps file :func:`read_frame_times` takes dt from (lidar preferred; a
+    KITTI-odometry sequence's ``times.txt``), or None."""
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        path = kitti_odometry.times_file(sequence_dir)
+        return path if path.is_file() else None
     for name in TIMESTAMP_FILES:
         if (Path(sequence_dir) / name).is_file():
             return Path(sequence_dir) / name
@@ -382,9 +393,12 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
     frame errors, :func:`missing_time_errors`), and the times count from the first frame that
     has one. Raises :class:`FrameDataError` naming the file and line for a
     malformed line, times that are not strictly increasing, and clocks that disagree.
-    Values are rounded to the nanosecond of the file.
+    Values are rounded to the nanosecond of the file. A KITTI-odometry sequence's times
+    come from its ``times.txt`` (:func:`ttc.kitti_odometry.read_times`).
     """
     sequence_dir = Path(sequence_dir)
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        return kitti_odometry.read_times(sequence_dir)
     paths = [sequence_dir / name for name in TIMESTAMP_FILES if (sequence_dir / name).is_file()]
     if not paths:
         return None
@@ -500,7 +514,10 @@ def read_truth(sequence_dir: Path | str) -> pd.DataFrame | None:
 
 def with_truth(rows: pd.DataFrame, sequence_dir: Path | str) -> pd.DataFrame:
     """``rows`` (one per frame pair × box pair) with the recording's :data:`TRUTH_COLUMNS` of
-    each row's pair (by ``frame``); unchanged when the recording has no truth table."""
+    each row's pair (by ``frame``); unchanged when the recording has no truth table. A
+    KITTI-odometry sequence with poses gets its pairs' ego speed instead
+    (:func:`ttc.kitti_odometry.with_ego_speed`)."""
+    rows = kitti_odometry.with_ego_speed(rows, sequence_dir)
     truth = read_truth(sequence_dir)
     if truth is None or rows.empty:
         return rows

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from ttc import kitti_odometry
 from ttc.cache import Lookup, RecentArrays, StageCache, Task, cache_key
 from ttc.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_binary
 from ttc.frames import (
@@ -234,6 +235,7 @@ def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     calib = calibration_dir(seq)
     files = [calib / CAM_TO_CAM, calib / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
     files += [seq / TRUTH_FILE] if (seq / TRUTH_FILE).is_file() else []
+    files += kitti_odometry.layout_files(seq) if kitti_odometry.is_odometry_sequence(seq) else []
     for index in frames.indices:
         ff = frame_files(seq, index)
         files += [ff.image, ff.scan]
