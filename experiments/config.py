@@ -65,6 +65,7 @@ class DatasetConfig:
     min_scan_points: int = 100_000
     date: str = ""  # kitti_raw: the KITTI date folder, e.g. 2011_09_26
     drive: str = ""  # kitti_raw: the drive number, e.g. 0052
+    sequence_id: str = ""  # kitti_odometry: the sequence number, e.g. 04
     generator: Any = None  # a generated dataset's parameters (dataset=scale_truth), else None
 
 
@@ -280,6 +281,8 @@ def missing_data_message(cfg: DictConfig) -> str:
     recording = sequence_dir(cfg)
     if cfg.dataset.get("date"):
         return datasets.missing_drive_message(recording)
+    if cfg.dataset.get("sequence_id"):
+        return datasets.missing_odometry_message(recording)
     return (
         f"KITTI frames not found: {recording} does not exist.\n"
         "Point TTC_DATA_DIR (or dataset.root=...) at a folder holding "

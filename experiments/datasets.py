@@ -14,6 +14,14 @@ Two layouts, one ``dataset.sequence`` (a folder under ``dataset.root``) for both
   :func:`ttc.io.frames.calibration_dir` finds the calibration one folder up, and
   :func:`ttc.io.frames.read_frame_times` the real timestamps. ``last: null`` is the drive's
   last frame (:func:`last_frame`).
+* the official KITTI-odometry layout (``kitti_odometry``, key ``sequence_id``)::
+
+      <root>/kitti_odometry/sequences/<NN>/{image_2/*.png, velodyne/*.bin, calib.txt, times.txt}
+      <root>/kitti_odometry/poses/<NN>.txt   (optional: the ego speed of each pair)
+
+  ``sequence`` is the sequence folder (:func:`odometry_sequence`, the
+  ``kitti_odometry_sequence`` resolver); :mod:`ttc.io.kitti_odometry` reads it (``ttc.io.frames``
+  dispatches there for a folder in this layout).
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from ttc.io import kitti_odometry
 from ttc.io.frames import (
     CAM_TO_CAM,
     VELO_TO_CAM,
@@ -36,6 +45,10 @@ from ttc.io.frames import (
 RAW_FOLDER = "kitti_raw"
 #: The resolver the ``kitti_raw`` config builds ``dataset.sequence`` with.
 SEQUENCE_RESOLVER = "kitti_raw_sequence"
+#: Folder under the data root holding KITTI-odometry sequences in the official layout.
+ODOMETRY_FOLDER = "kitti_odometry"
+#: The resolver the ``kitti_odometry`` config builds ``dataset.sequence`` with.
+ODOMETRY_RESOLVER = "kitti_odometry_sequence"
 
 
 def kitti_date(value: Any) -> str:
@@ -62,10 +75,26 @@ def raw_sequence(date: Any, drive: Any) -> str:
     return f"{RAW_FOLDER}/{day}/{day}_drive_{kitti_drive(drive)}_sync"
 
 
+def odometry_sequence_id(value: Any) -> str:
+    """A KITTI-odometry sequence number as its two digits (``4`` and ``04`` give ``04``)."""
+    text = str(value).strip()
+    if not text.isdigit() or len(text) > 2:
+        raise ValueError(f"dataset.sequence_id={value!r}: expected a sequence number like 04")
+    return text.zfill(2)
+
+
+def odometry_sequence(sequence_id: Any) -> str:
+    """The sequence folder under the data root: ``kitti_odometry/sequences/<NN>``."""
+    return f"{ODOMETRY_FOLDER}/sequences/{odometry_sequence_id(sequence_id)}"
+
+
 def register_resolvers() -> None:
-    """Register the ``kitti_raw_sequence`` resolver (idempotent)."""
+    """Register the ``kitti_raw_sequence`` and ``kitti_odometry_sequence`` resolvers
+    (idempotent)."""
     if not OmegaConf.has_resolver(SEQUENCE_RESOLVER):
         OmegaConf.register_new_resolver(SEQUENCE_RESOLVER, raw_sequence)
+    if not OmegaConf.has_resolver(ODOMETRY_RESOLVER):
+        OmegaConf.register_new_resolver(ODOMETRY_RESOLVER, odometry_sequence)
 
 
 def last_frame(sequence_dir: Path) -> int | None:
@@ -96,8 +125,14 @@ def dataset_identity(dataset: dict[str, Any], sequence_dir: Path) -> dict[str, A
     """The recorded ``dataset`` part of a setting (no root): ``date`` / ``drive`` in their
     folder spelling and ``last: null`` resolved from the files, so a run over a whole drive
     names the frames it covered (a drive with more frames later is a different run).
-    A Udacity-layout dataset (no ``date``) is returned unchanged."""
+    A Udacity-layout dataset (no ``date``) is returned unchanged. ``sequence_id`` (the
+    ``kitti_odometry`` key) is recorded in its two-digit spelling, and left out when empty,
+    so the other datasets' settings read as before the key existed."""
     out = dict(dataset)
+    if out.get("sequence_id"):
+        out["sequence_id"] = odometry_sequence_id(out["sequence_id"])
+    else:
+        out.pop("sequence_id", None)
     if out.get("date"):
         out["date"], out["drive"] = kitti_date(out["date"]), kitti_drive(out["drive"])
     if out.get("last") is None:
@@ -109,7 +144,11 @@ def layout_problems(date: str, sequence_dir: Path) -> list[str]:
     """What is wrong with a KITTI-raw drive (``date`` set) beyond its frames, in words: it
     must ship its real timestamps, readable and agreeing (:func:`ttc.io.frames.read_frame_times`
     names the file and line), and its date folder the calibration. Nothing for a
-    Udacity-layout dataset (no ``date``), which runs at the nominal 10 Hz without them."""
+    Udacity-layout dataset (no ``date``), which runs at the nominal 10 Hz without them. A
+    KITTI-odometry sequence: :func:`ttc.io.kitti_odometry.layout_problems` (its ``calib.txt``
+    and ``times.txt``)."""
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        return kitti_odometry.layout_problems(sequence_dir)
     if not date:
         return []
     problems = []
@@ -138,4 +177,16 @@ def missing_drive_message(sequence_dir: Path) -> str:
         "nothing downloads it. Unpack the date's calibration and the drive's synced+rectified "
         f"archive under {sequence_dir.parents[1]} in the official layout (README, 'Any KITTI "
         "raw drive'), or point TTC_DATA_DIR / dataset.root at a folder holding kitti_raw/."
+    )
+
+
+def missing_odometry_message(sequence_dir: Path) -> str:
+    """What to say when a KITTI-odometry sequence folder does not exist (nothing is downloaded)."""
+    return (
+        f"KITTI odometry sequence not found: {sequence_dir} does not exist.\n"
+        "KITTI odometry needs registration at "
+        "https://www.cvlibs.net/datasets/kitti/eval_odometry.php; nothing downloads it. Unpack "
+        "the colour, Velodyne, calibration and poses archives under "
+        f"{sequence_dir.parents[1]} in the official layout (README, 'KITTI odometry'), or "
+        "point TTC_DATA_DIR / dataset.root at a folder holding kitti_odometry/."
     )

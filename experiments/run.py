@@ -35,6 +35,7 @@ from typing import Any
 
 import cv2
 import hydra
+import numpy as np
 import pandas as pd
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
@@ -59,6 +60,7 @@ from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
 from ttc.engine.stages import input_files
 from ttc.features.descriptors import InvalidCombinationError
+from ttc.reasons import FRAME_ERROR, NO_LEAD_BOX
 from ttc.settings import AXES
 
 register_configs()
@@ -164,6 +166,24 @@ SUMMARY_COLUMNS = ["frame", "curr_box", "ttc_lidar", "ttc_camera", "lidar_reason
                    "camera_reason", "matches_in_box", "matches_kept"]  # fmt: skip
 
 
+def no_lead_line(rows: pd.DataFrame) -> str | None:
+    """One line for a run none of whose frame pairs has a lead vehicle (no lead row but the
+    ``frame_error`` rows of unreadable pairs), e.g. ``no lead vehicle in frames 0–10: 10 of
+    10 pairs `no_lead_box```; None when some pair has one (or there are no rows)."""
+    if rows.empty:
+        return None
+    errors = rows["lidar_reason"] == FRAME_ERROR
+    if (rows["is_lead"] & ~errors).any():
+        return None
+    pair = rows.assign(no_lead=rows["lidar_reason"] == NO_LEAD_BOX, error=errors)
+    pair = pair.groupby(["prev_frame", "frame"])[["no_lead", "error"]].any()
+    reason = np.where(pair["error"], FRAME_ERROR, np.where(pair["no_lead"], NO_LEAD_BOX, "other"))
+    counts = pd.Series(reason).value_counts()
+    told = ", ".join(f"{n} of {len(reason)} pairs `{r}`" for r, n in counts.items())
+    first, last = int(rows["prev_frame"].min()), int(rows["frame"].max())
+    return f"no lead vehicle in frames {first}–{last}: {told}"
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> None:
     multirun = HydraConfig.get().mode == RunMode.MULTIRUN
@@ -195,8 +215,11 @@ def main(cfg: DictConfig) -> None:
     if result["status"] == "ok" and cfg.print_rows:
         rows = result["rows"]
         lead = rows[rows["is_lead"]]
-        with pd.option_context("display.width", 140, "display.max_columns", 20):
-            print(lead[SUMMARY_COLUMNS].head(cfg.print_rows).to_string(index=False))
+        if (line := no_lead_line(rows)) is not None:
+            print(line)
+        else:
+            with pd.option_context("display.width", 140, "display.max_columns", 20):
+                print(lead[SUMMARY_COLUMNS].head(cfg.print_rows).to_string(index=False))
         print(f"rows: {store.run_paths(sweep_dir, result['run_id'])[0]}")
     if result["status"] == "failed":
         sys.exit(1)

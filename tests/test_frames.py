@@ -15,6 +15,7 @@ from ttc.io.frames import (
     frame_interval,
     load_calibration,
     load_frame,
+    missing_time_errors,
     pair_interval,
     read_frame_times,
     read_image,
@@ -161,7 +162,7 @@ def test_frame_times_relative_to_frame_0_lidar_preferred(tmp_path: Path) -> None
     [
         ("2011-09-26 13:02:44,539690445", "line 3: malformed timestamp '2011-09-26 13:02:44,539690445'"),
         ("2011-09-26 13:02:61.000000000", "line 3: malformed timestamp"),
-        ("", "line 3: malformed timestamp ''"),
+        (" x", "line 3: malformed timestamp ' x'"),
         ("2011-09-26 13:02:44.439690445", "line 3: time '2011-09-26 13:02:44.439690445' is not after line 2's"),
     ],
 )  # fmt: skip
@@ -174,3 +175,38 @@ def test_malformed_or_non_increasing_timestamps_name_file_and_line(tmp_path, lin
     with pytest.raises(FrameDataError) as info:
         read_frame_times(tmp_path)
     assert str(info.value).startswith(f"{path}: {problem}")
+
+
+def test_a_blank_timestamp_line_is_a_missing_frame(tmp_path: Path) -> None:
+    """KITTI publishes drives with blank lines where a sensor's data is missing (drive 0009,
+    frames 177–180): those frames have no time (NaN), the others keep theirs, and the times
+    still count from frame 0, or from the first frame that has a time."""
+    path = tmp_path / "velodyne_points" / "timestamps.txt"
+    path.parent.mkdir()
+    lines = kitti_times(5, 100_000_000).splitlines()
+    lines[2] = ""
+    path.write_text("\n".join(lines) + "\n")
+    times = read_frame_times(tmp_path)
+    np.testing.assert_allclose(times, [0.0, 0.1, np.nan, 0.3, 0.4], rtol=0, atol=1e-12)
+    assert np.isnan(pair_interval(times, 1, 2))
+    assert pair_interval(times, 3, 4) == 0.1
+    errors = missing_time_errors(tmp_path, [0, 1, 2, 3])
+    assert list(errors) == [2]
+    assert str(errors[2]) == f"{path}: line 3: blank timestamp: frame 2 was not recorded"
+    assert missing_time_errors(tmp_path, [3, 4]) == {}  # outside the range: no matter
+    lines[0] = ""
+    path.write_text("\n".join(lines) + "\n")
+    np.testing.assert_allclose(
+        read_frame_times(tmp_path), [np.nan, 0.0, np.nan, 0.2, 0.3], rtol=0, atol=1e-12
+    )
+
+
+def test_blank_lines_of_both_clocks_are_compared_only_where_both_have_a_time(tmp_path):
+    """The lidar's file blank at a frame the camera has (drive 0009): the clocks agree."""
+    for folder, step in (("velodyne_points", 100_000_000), ("image_02", 100_500_000)):
+        (tmp_path / folder).mkdir()
+        lines = kitti_times(5, step).splitlines()
+        if folder == "velodyne_points":
+            lines[2] = ""
+        (tmp_path / folder / "timestamps.txt").write_text("\n".join(lines) + "\n")
+    assert np.isnan(read_frame_times(tmp_path)[2])

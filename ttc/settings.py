@@ -98,7 +98,7 @@ AXIS_TABLE: tuple[Axis, ...] = (
         "dataset",
         None,
         "dataset config (frame range)",
-        neutral=(("date", ""), ("drive", ""), ("generator", None)),
+        neutral=(("date", ""), ("drive", ""), ("sequence_id", ""), ("generator", None)),
     ),
 )
 AXIS_BY_NAME: dict[str, Axis] = {a.name: a for a in AXIS_TABLE}

@@ -36,6 +36,7 @@ from ttc.features.keypoints import detect_keypoints
 from ttc.features.klt import track_keypoints
 from ttc.features.matching import knn_candidates, tracks_to_arrays, uses_descriptors
 from ttc.features.objects import detect_objects, model_identity
+from ttc.io import kitti_odometry
 from ttc.io.frames import (
     CAM_TO_CAM,
     TIMESTAMP_FILES,
@@ -46,6 +47,7 @@ from ttc.io.frames import (
     file_identity,
     frame_files,
     frame_pairs,
+    missing_time_errors,
     read_image,
     read_lidar_scan,
 )
@@ -233,6 +235,7 @@ def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     calib = calibration_dir(seq)
     files = [calib / CAM_TO_CAM, calib / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
     files += [seq / TRUTH_FILE] if (seq / TRUTH_FILE).is_file() else []
+    files += kitti_odometry.layout_files(seq) if kitti_odometry.is_odometry_sequence(seq) else []
     for index in frames.indices:
         ff = frame_files(seq, index)
         files += [ff.image, ff.scan]
@@ -280,11 +283,12 @@ def stream(
 
     Cooperative fill within a chunk: per-frame stages first, then the pairs ending in the
     chunk; entries another worker is computing right now are deferred (see
-    :meth:`StageCache.resolve`). After a chunk only its last frame's data is kept.
+    :meth:`StageCache.resolve`). After a chunk only its last frame's data is kept. A frame
+    with a blank timestamp line is broken from the start (:func:`ttc.io.frames.missing_time_errors`).
     """
     stages = FrameStages(settings, frames, cache)
     per_frame: dict[str, dict[int, Lookup]] = {name: {} for name in PER_FRAME_STAGES}
-    broken: dict[int, Exception] = {}
+    broken: dict[int, Exception] = missing_time_errors(frames.sequence_dir, indices)
     all_pairs = frame_pairs(indices, frames.pairing)
     for start in range(0, len(indices), CHUNK_FRAMES):
         todo = indices[start : start + CHUNK_FRAMES]

@@ -29,6 +29,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from ttc.io import kitti_odometry
+from ttc.io.frame_errors import FrameDataError
+
 IMAGE_DIR = Path("image_02") / "data"
 LIDAR_DIR = Path("velodyne_points") / "data"
 CAM_TO_CAM = "calib_cam_to_cam.txt"
@@ -36,15 +39,6 @@ VELO_TO_CAM = "calib_velo_to_cam.txt"
 PROJECTIONS = ("P_rect_02", "P_rect_00")
 LIDAR_RECORD_BYTES = 16  # float32 x, y, z, reflectance
 SENSOR_RATE_HZ = 10.0
-
-
-class FrameDataError(ValueError):
-    """An input file is missing or malformed; ``path`` names it."""
-
-    def __init__(self, path: Path | str, problem: str) -> None:
-        self.path = Path(path)
-        self.problem = problem
-        super().__init__(f"{self.path}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -152,10 +146,16 @@ def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") ->
     """Read both calibration files of a recording.
 
     ``projection="P_rect_02"`` is correct for image_02; ``"P_rect_00"`` reproduces the Udacity
-    C++ starter (a shift of ≈ 45 px / z[m] in u).
+    C++ starter (a shift of ≈ 45 px / z[m] in u). A KITTI-odometry sequence's ``calib.txt``
+    is read by :func:`ttc.io.kitti_odometry.read_calibration` (``P2`` / ``P0`` and ``Tr``, no
+    rectifying rotation).
     """
     if projection not in PROJECTIONS:
         raise ValueError(f"projection must be one of {PROJECTIONS}, got {projection!r}")
+    if kitti_odometry.is_odometry_sequence(sequence_dir):  # calib.txt: P2 · Tr
+        p_rect, velo_to_cam = kitti_odometry.read_calibration(sequence_dir, projection)
+        size = kitti_odometry.image_size(sequence_dir)
+        return Calibration(p_rect, np.eye(3), velo_to_cam, size, projection)
     sequence_dir = calibration_dir(sequence_dir)
     cam_path, velo_path = sequence_dir / CAM_TO_CAM, sequence_dir / VELO_TO_CAM
     cam = _read_calibration_file(cam_path)
@@ -225,8 +225,12 @@ class FrameFiles:
 
 
 def frame_files(sequence_dir: Path | str, index: int) -> FrameFiles:
-    """The image and scan paths of frame ``index`` (10-digit zero-padded names)."""
+    """The image and scan paths of frame ``index`` (10-digit zero-padded names; a KITTI-odometry
+    sequence's 6-digit ``image_2/`` and ``velodyne/`` names, :mod:`ttc.io.kitti_odometry`)."""
     sequence_dir = Path(sequence_dir)
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        image = kitti_odometry.image_path(sequence_dir, index)
+        return FrameFiles(index, image, kitti_odometry.scan_path(sequence_dir, index))
     stem = f"{index:010d}"
     return FrameFiles(
         index=index,
@@ -251,8 +255,11 @@ def file_identity(path: Path | str) -> tuple[str, int, int]:
 
 
 def recording_frames(sequence_dir: Path | str) -> list[int]:
-    """Indices of the frames a recording holds (an image or a scan named ``NNNNNNNNNN``)."""
+    """Indices of the frames a recording holds (an image or a scan named ``NNNNNNNNNN``, or
+    ``NNNNNN`` in a KITTI-odometry sequence)."""
     sequence_dir = Path(sequence_dir)
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        return kitti_odometry.frames_on_disk(sequence_dir)
     found: set[int] = set()
     for folder, suffix in ((IMAGE_DIR, ".png"), (LIDAR_DIR, ".bin")):
         with contextlib.suppress(FileNotFoundError, NotADirectoryError):
@@ -301,7 +308,11 @@ def _timestamp_ns(line: str, path: Path, number: int) -> int:
 
 
 def timestamps_file(sequence_dir: Path | str) -> Path | None:
-    """The timestamps file :func:`read_frame_times` takes dt from (lidar preferred), or None."""
+    """The timestamps file :func:`read_frame_times` takes dt from (lidar preferred; a
+    KITTI-odometry sequence's ``times.txt``), or None."""
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        path = kitti_odometry.times_file(sequence_dir)
+        return path if path.is_file() else None
     for name in TIMESTAMP_FILES:
         if (Path(sequence_dir) / name).is_file():
             return Path(sequence_dir) / name
@@ -312,13 +323,17 @@ def timestamps_file(sequence_dir: Path | str) -> Path | None:
 #: a tenth of the 10 Hz period. One dt serves the lidar and the camera TTC of a pair, so
 #: clocks further apart would scale one of them silently by more than 10 %.
 CLOCK_TOLERANCE_S = 0.01
+#: A blank line of a ``timestamps.txt`` (a frame without this sensor's data), in nanoseconds.
+MISSING_NS = np.iinfo(np.int64).min
 
 
 def _read_times_ns(path: Path) -> tuple[np.ndarray, list[str]]:
-    """Nanoseconds since 1970 of every line of one KITTI ``timestamps.txt`` and its lines.
+    """Nanoseconds since 1970 of every line of one KITTI ``timestamps.txt`` and its lines;
+    a blank line (a frame KITTI published without this sensor's data, e.g. drive 0009's
+    frames 177–180) is :data:`MISSING_NS`.
 
     Raises :class:`FrameDataError` naming the file and line for a malformed line and for
-    times that are not strictly increasing.
+    times that are not strictly increasing (blank lines skipped).
     """
     try:
         lines = path.read_text().splitlines()
@@ -328,14 +343,21 @@ def _read_times_ns(path: Path) -> tuple[np.ndarray, list[str]]:
         lines.pop()
     if not lines:
         raise FrameDataError(path, "no timestamps")
-    ns = [_timestamp_ns(line, path, number) for number, line in enumerate(lines, start=1)]
-    for number in range(1, len(ns)):
-        if ns[number] <= ns[number - 1]:
+    ns = [
+        _timestamp_ns(line, path, number) if line.strip() else MISSING_NS
+        for number, line in enumerate(lines, start=1)
+    ]
+    last = None  # index of the previous present line
+    for number in range(len(ns)):
+        if ns[number] == MISSING_NS:
+            continue
+        if last is not None and ns[number] <= ns[last]:
             raise FrameDataError(
                 path,
                 f"line {number + 1}: time {lines[number].strip()!r} is not after line "
-                f"{number}'s {lines[number - 1].strip()!r} (times must strictly increase)",
+                f"{last + 1}'s {lines[last].strip()!r} (times must strictly increase)",
             )
+        last = number
     return np.array(ns, dtype=np.int64), lines
 
 
@@ -348,7 +370,8 @@ def check_clocks_agree(lidar: Path, lidar_ns: np.ndarray, camera: Path, camera_n
             camera, f"{len(camera_ns)} timestamps, but {lidar} has {len(lidar_ns)} (one per frame)"
         )
     gap = np.abs(np.diff(camera_ns) - np.diff(lidar_ns)) / 1e9
-    bad = np.flatnonzero(gap > CLOCK_TOLERANCE_S)
+    present = (camera_ns != MISSING_NS) & (lidar_ns != MISSING_NS)
+    bad = np.flatnonzero((gap > CLOCK_TOLERANCE_S) & present[1:] & present[:-1])
     if bad.size:
         k = int(bad[0]) + 1  # frame k: the pair (k - 1, k), line k + 1
         raise FrameDataError(
@@ -366,11 +389,16 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
     When both files exist, both are read and must agree (:func:`check_clocks_agree`: as many
     lines, every pair's intervals within :data:`CLOCK_TOLERANCE_S`); the lidar's times are
     returned (KITTI triggers the camera from the lidar's rotation). When one is missing, the
-    other alone is used. Raises :class:`FrameDataError` naming the file and line for a
+    other alone is used. A blank line is a missing frame: its time is NaN (its pairs become
+    frame errors, :func:`missing_time_errors`), and the times count from the first frame that
+    has one. Raises :class:`FrameDataError` naming the file and line for a
     malformed line, times that are not strictly increasing, and clocks that disagree.
-    Values are rounded to the nanosecond of the file.
+    Values are rounded to the nanosecond of the file. A KITTI-odometry sequence's times
+    come from its ``times.txt`` (:func:`ttc.io.kitti_odometry.read_times`).
     """
     sequence_dir = Path(sequence_dir)
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        return kitti_odometry.read_times(sequence_dir)
     paths = [sequence_dir / name for name in TIMESTAMP_FILES if (sequence_dir / name).is_file()]
     if not paths:
         return None
@@ -378,7 +406,26 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
     if len(paths) == 2:
         check_clocks_agree(paths[0], clocks[0], paths[1], clocks[1])
     ns = clocks[0]
-    return (ns - ns[0]) / 1e9
+    present = ns != MISSING_NS
+    origin = ns[np.argmax(present)]
+    seconds = (np.where(present, ns, origin) - origin) / 1e9
+    seconds[~present] = np.nan
+    return seconds
+
+
+def missing_time_errors(sequence_dir: Path | str, indices: list[int]) -> dict[int, Exception]:
+    """A :class:`FrameDataError` for each frame of ``indices`` whose line in the recording's
+    timestamps file (:func:`timestamps_file`) is blank; the pairs of such a frame become
+    ``frame_error`` rows. Empty when the recording has no timestamps."""
+    times = read_frame_times(sequence_dir)
+    if times is None:
+        return {}
+    path = timestamps_file(sequence_dir)
+    return {
+        i: FrameDataError(path, f"line {i + 1}: blank timestamp: frame {i} was not recorded")
+        for i in indices
+        if i < len(times) and np.isnan(times[i])
+    }
 
 
 def pair_interval(times: np.ndarray | None, prev: int, curr: int, step: int = 1) -> float:
@@ -467,7 +514,10 @@ def read_truth(sequence_dir: Path | str) -> pd.DataFrame | None:
 
 def with_truth(rows: pd.DataFrame, sequence_dir: Path | str) -> pd.DataFrame:
     """``rows`` (one per frame pair × box pair) with the recording's :data:`TRUTH_COLUMNS` of
-    each row's pair (by ``frame``); unchanged when the recording has no truth table."""
+    each row's pair (by ``frame``); unchanged when the recording has no truth table. A
+    KITTI-odometry sequence with poses gets its pairs' ego speed instead
+    (:func:`ttc.io.kitti_odometry.with_ego_speed`)."""
+    rows = kitti_odometry.with_ego_speed(rows, sequence_dir)
     truth = read_truth(sequence_dir)
     if truth is None or rows.empty:
         return rows

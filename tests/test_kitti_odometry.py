@@ -1,0 +1,109 @@
+"""``dataset=kitti_odometry`` on the shared sequence 04 (frames 0–40, official odometry
+layout): the lidar sees the lead van where measured (22.1 m at frame 0, 20.5 m at 40), the
+YOLO box of the van holds its projected points (``P2 · Tr``), ``dt`` is the ``times.txt``
+difference, and a bad ``calib.txt`` names the file and key."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+
+from experiments.config import (
+    config_problems,
+    frame_range_from_config,
+    register_configs,
+    run_id,
+    settings_from_config,
+)
+from tests.conftest import PROJECT_ROOT
+from ttc.engine.cache import StageCache
+from ttc.engine.runner import run_setting
+from ttc.evaluation.lead_distance import rear_distance
+from ttc.features.objects import ObjectDetectorParams, detect_objects
+from ttc.io.frames import FrameDataError, load_calibration, load_frame, read_frame_times
+from ttc.io.kitti_odometry import EGO_SPEED
+from ttc.steps.box_matching import points_in_rois
+from ttc.steps.lidar import project_to_image
+
+
+@pytest.fixture(scope="module")
+def seq(data_dir: Path) -> Path:
+    path = data_dir / "kitti_odometry" / "sequences" / "04"
+    if not path.is_dir():
+        pytest.fail(f"{path} not found (README of the data: kitti_odometry/)")
+    return path
+
+
+def van_points(points: np.ndarray) -> np.ndarray:
+    """In-lane points above the ground, 5–40 m ahead: the van is the nearest object there."""
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    lane = points[(np.abs(y) < 1.0) & (x > 5) & (x < 40) & (z > -1.4)]
+    return lane[lane[:, 0] < lane[:, 0].min() + 1.0]  # its rear, 1 m deep
+
+
+@pytest.mark.parametrize(("frame", "metres"), [(0, 22.1), (40, 20.5)])
+def test_the_lidar_sees_the_van_where_measured(seq, frame, metres) -> None:
+    van = van_points(load_frame(seq, frame).scan.points)
+    assert len(van) > 100
+    assert rear_distance(van) == pytest.approx(metres, abs=0.10)
+
+
+@pytest.mark.parametrize("frame", [0, 40])
+def test_the_lead_box_holds_the_vans_projected_points(seq, frame) -> None:
+    loaded = load_frame(seq, frame)
+    calib = load_calibration(seq)
+    assert loaded.image.shape == (370, 1226, 3) and calib.image_size == (1226, 370)
+    uv = project_to_image(van_points(loaded.scan.points)[:, :3], calib.velo_to_image)
+    boxes = detect_objects(loaded.image, ObjectDetectorParams()).roi
+    inside = points_in_rois(uv, boxes)  # (points, boxes)
+    best = int(np.argmax(inside.sum(axis=0)))
+    # YOLO's box (37-46 px) is tighter than the van's lidar outline (roof, mirrors): it holds
+    # the centre of the van's points and a good share of them, and no other box holds any.
+    assert inside[:, best].mean() > 0.3
+    assert points_in_rois(np.median(uv, axis=0)[None], boxes[best : best + 1]).all()
+    assert inside.sum(axis=0).tolist().count(0) == len(boxes) - 1
+    assert 30 <= boxes[best][2] <= 60  # the van's 37–46 px wide box
+
+
+def composed(overrides: list[str]):
+    register_configs()
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=overrides)
+
+
+def test_dt_is_the_times_txt_difference_and_ego_speed_from_the_poses(seq) -> None:
+    cfg = composed(["dataset=kitti_odometry", "dataset.last=3"])
+    assert config_problems(cfg) == []
+    assert cfg.dataset.sequence == "kitti_odometry/sequences/04"
+    rows = run_setting(settings_from_config(cfg), frame_range_from_config(cfg), StageCache(None))
+    times = [float(line) for line in (seq / "times.txt").read_text().split()]
+    assert len(times) == 271 and len(read_frame_times(seq)) == 271
+    expected = rows["frame"].map(lambda k: round(times[k] - times[k - 1], 9))
+    np.testing.assert_array_equal(rows["dt"], expected)
+    assert sorted(rows["frame"].unique()) == [1, 2, 3]
+    assert rows[EGO_SPEED].between(12.5, 14.0).all()  # README: 12.6–13.7 m/s
+    whole = composed(["dataset=kitti_odometry"])
+    assert frame_range_from_config(whole).last == 40  # last: null = the last frame on disk
+    assert run_id(whole) != run_id(cfg)
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        (lambda t: t.replace("Tr:", "Tx:"), "missing entry 'Tr'"),
+        (lambda t: t.replace("P2: 7.070912000000e+02", "P2: 7.07O912e+02"), "'P2' has a non-numeric value '7.07O912e+02'"),
+    ],
+)  # fmt: skip
+def test_calibration_errors_name_the_file_and_key(seq, tmp_path, edit, problem) -> None:
+    copy = tmp_path / "sequences" / "04"
+    copy.mkdir(parents=True)
+    (copy / "image_2").symlink_to(seq / "image_2")
+    shutil.copy(seq / "calib.txt", copy / "calib.txt")
+    (copy / "calib.txt").write_text(edit((copy / "calib.txt").read_text()))
+    with pytest.raises(FrameDataError) as info:
+        load_calibration(copy)
+    assert str(info.value) == f"{copy / 'calib.txt'}: {problem}"
