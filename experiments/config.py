@@ -37,7 +37,8 @@ from experiments.identity import (  # noqa: F401 (also imported from here)
 from ttc.features.descriptors import DESCRIPTORS, NO_DESCRIPTOR
 from ttc.features.keypoints import DETECTORS
 from ttc.features.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
-from ttc.io.frames import PROJECTIONS, recording_frames
+from ttc.io.calibration import PROJECTIONS
+from ttc.io.frames import recording_frames
 from ttc.settings import AXIS_TABLE, FrameRange, Settings
 from ttc.steps.lidar import LaneCropParams
 

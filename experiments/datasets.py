@@ -11,7 +11,7 @@ Two layouts, one ``dataset.sequence`` (a folder under ``dataset.root``) for both
       <root>/kitti_raw/<date>/<date>_drive_<drive>_sync/velodyne_points/{data/*.bin, timestamps.txt}
 
   ``sequence`` is the drive folder (:func:`raw_sequence`, the ``kitti_raw_sequence`` resolver);
-  :func:`ttc.io.frames.calibration_dir` finds the calibration one folder up, and
+  :func:`ttc.io.calibration.calibration_dir` finds the calibration one folder up, and
   :func:`ttc.io.frames.read_frame_times` the real timestamps. ``last: null`` is the drive's
   last frame (:func:`last_frame`).
 * the official KITTI-odometry layout (``kitti_odometry``, key ``sequence_id``)::
@@ -32,14 +32,8 @@ from typing import Any
 from omegaconf import OmegaConf
 
 from ttc.io import kitti_odometry
-from ttc.io.frames import (
-    CAM_TO_CAM,
-    VELO_TO_CAM,
-    FrameDataError,
-    calibration_dir,
-    read_frame_times,
-    recording_frames,
-)
+from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM, calibration_dir
+from ttc.io.frames import FrameDataError, read_frame_times, recording_frames
 
 #: Folder under the data root holding KITTI-raw dates in the official layout.
 RAW_FOLDER = "kitti_raw"

@@ -41,18 +41,20 @@ from ttc.features.descriptors import DESCRIPTORS
 from ttc.features.keypoints import DETECTORS
 from ttc.features.objects import detect_objects, model_identity
 from ttc.io import scaled_pairs as generator
-from ttc.io.frames import (
+from ttc.io.calibration import (
     CAM_TO_CAM,
+    VELO_TO_CAM,
+    Calibration,
+    calibration_dir,
+    load_calibration,
+)
+from ttc.io.frames import (
     IMAGE_DIR,
     LIDAR_DIR,
     TRUTH_COLUMNS,
     TRUTH_FILE,
-    VELO_TO_CAM,
-    Calibration,
-    calibration_dir,
     file_identity,
     frame_files,
-    load_calibration,
     read_image,
 )
 from ttc.io.scaled_pairs import ScaleTruthParams, SyntheticPair, make_pair

@@ -45,7 +45,8 @@ from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.objects import coco_names
-from ttc.io.frames import FrameDataError, frame_files, load_calibration, read_lidar_scan
+from ttc.io.calibration import load_calibration
+from ttc.io.frames import FrameDataError, frame_files, read_lidar_scan
 from ttc.rows import PairDetail
 from ttc.settings import AXES, FrameRange, Settings
 from ttc.steps.lidar import project_to_image

@@ -33,7 +33,8 @@ def kitti_dir(data_dir: Path) -> Path:
 
 def copy_frames(kitti_dir: Path, target: Path, indices: range | list[int]) -> Path:
     """Copy frames (image + scan) and both calibration files to ``target`` (to be damaged)."""
-    from ttc.io.frames import CAM_TO_CAM, VELO_TO_CAM, frame_files
+    from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM
+    from ttc.io.frames import frame_files
 
     for index in indices:
         files = frame_files(kitti_dir, index)

@@ -26,13 +26,8 @@ from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
 from ttc.features.descriptors import DESCRIPTORS
 from ttc.features.keypoints import DETECTORS
-from ttc.io.frames import (
-    CAM_TO_CAM,
-    VELO_TO_CAM,
-    FrameDataError,
-    frame_files,
-    load_calibration,
-)
+from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM, load_calibration
+from ttc.io.frames import FrameDataError, frame_files
 from ttc.settings import FrameRange, Settings
 
 SEQUENCE = Path("kitti") / "2011_09_26"

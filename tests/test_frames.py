@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from tests.conftest import copy_frames
+from ttc.io.calibration import load_calibration
 from ttc.io.frames import (
     FrameDataError,
     frame_files,
     frame_indices,
     frame_interval,
-    load_calibration,
     load_frame,
     missing_time_errors,
     pair_interval,

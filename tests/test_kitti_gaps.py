@@ -27,7 +27,8 @@ from tests.conftest import PROJECT_ROOT
 from ttc import reasons
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
-from ttc.io.frames import CAM_TO_CAM, IMAGE_DIR, LIDAR_DIR, VELO_TO_CAM, read_frame_times
+from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM
+from ttc.io.frames import IMAGE_DIR, LIDAR_DIR, read_frame_times
 
 DATE = "2011_09_26"
 DRIVE = f"kitti_raw/{DATE}/{DATE}_drive_0009_sync"

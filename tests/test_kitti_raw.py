@@ -23,7 +23,8 @@ from experiments.config import (
 from tests.conftest import PROJECT_ROOT
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
-from ttc.io.frames import CAM_TO_CAM, IMAGE_DIR, LIDAR_DIR, VELO_TO_CAM, FrameDataError, frame_files
+from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM
+from ttc.io.frames import IMAGE_DIR, LIDAR_DIR, FrameDataError, frame_files
 
 DATE = "2011_09_26"
 START = dt.datetime(2011, 9, 26, 13, 2, 44)
@@ -172,7 +173,7 @@ def test_a_drive_without_timestamps_or_calibration_is_refused(kitti_dir, tmp_pat
 
 
 def test_calibration_split_between_drive_and_date_folder_is_refused(kitti_dir, tmp_path) -> None:
-    """The run reads both files from one folder (:func:`ttc.io.frames.calibration_dir`): one in
+    """The run reads both files from one folder (:func:`ttc.io.calibration.calibration_dir`): one in
     the drive folder and the other only in the date folder is refused before any job, naming
     the file the run would miss."""
     seq = make_drive(kitti_dir, tmp_path, "0052", [0, 1, 2])

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ttc.io.frames import load_calibration, load_frame
+from ttc.io.calibration import load_calibration
+from ttc.io.frames import load_frame
 from ttc.steps.lidar import (
     LaneCropParams,
     assign_points_to_boxes,

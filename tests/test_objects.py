@@ -27,7 +27,8 @@ from ttc.features.objects import (
     load_detector,
     vehicle_class_ids,
 )
-from ttc.io.frames import frame_files, load_calibration, read_image
+from ttc.io.calibration import load_calibration
+from ttc.io.frames import frame_files, read_image
 
 N_FRAMES = 78
 CAMERA_HEIGHT_M = 1.65  # KITTI camera above the road

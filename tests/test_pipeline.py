@@ -114,7 +114,7 @@ def test_broken_frame_is_a_row_not_a_crash(kitti_dir: Path, tmp_path: Path) -> N
 def test_real_frame_times_set_dt(kitti_dir: Path, tmp_path: Path, cache_dir: Path, step_ns) -> None:
     """With a timestamps file 0.1 s apart the TTCs are today's; 0.2 s apart doubles them."""
     from tests.test_frames import kitti_times
-    from ttc.io.frames import CAM_TO_CAM, VELO_TO_CAM
+    from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM
 
     for index in range(4):
         for src in (frame_files(kitti_dir, index).image, frame_files(kitti_dir, index).scan):

@@ -279,7 +279,7 @@ def test_a_kitti_raw_drive_can_be_a_source(kitti_dir: Path, tmp_path: Path) -> N
     """A source in the official KITTI-raw layout (calibration in the date folder, beside the
     drive) is generated from too: its calibration is found, keyed and copied with the pairs."""
     from tests.test_kitti_raw import make_drive
-    from ttc.io.frames import CAM_TO_CAM, VELO_TO_CAM, load_calibration
+    from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM, load_calibration
 
     drive = make_drive(kitti_dir, tmp_path, "0052", [0, 1, 2])
     assert not (drive / CAM_TO_CAM).exists()  # only in the date folder

@@ -18,7 +18,8 @@ from ttc.engine.runner import run_setting
 from ttc.features.descriptors import DESCRIPTORS
 from ttc.features.keypoints import DETECTORS
 from ttc.features.objects import ObjectDetectorParams, detect_objects
-from ttc.io.frames import load_calibration, load_frame
+from ttc.io.calibration import load_calibration
+from ttc.io.frames import load_frame
 from ttc.settings import FrameRange, Settings
 from ttc.steps.lidar import LaneCropParams, associate_lead, crop_to_lane
 

@@ -15,7 +15,7 @@ from typing import Any
 from ttc.engine.cache import Lookup
 from ttc.features.keypoints import X, Y
 from ttc.features.matching import current_keypoints, pair_matches
-from ttc.io.frames import Calibration
+from ttc.io.calibration import Calibration
 from ttc.rows import MEMBER, box_head, camera_columns, lidar_columns, pair_columns
 from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.box_matching import count_shared_matches, match_boxes

@@ -38,12 +38,11 @@ from ttc.engine.pair_steps import PairSteps
 from ttc.engine.stages import stream
 from ttc.features.descriptors import check_pair
 from ttc.features.matching import uses_descriptors
+from ttc.io.calibration import Calibration, load_calibration
 from ttc.io.frames import (
-    Calibration,
     FrameDataError,
     check_frame_range,
     frame_files,
-    load_calibration,
     pair_interval,
     read_frame_times,
     read_image,

@@ -37,13 +37,11 @@ from ttc.features.klt import track_keypoints
 from ttc.features.matching import knn_candidates, tracks_to_arrays, uses_descriptors
 from ttc.features.objects import detect_objects, model_identity
 from ttc.io import kitti_odometry
+from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM, calibration_dir
 from ttc.io.frames import (
-    CAM_TO_CAM,
     TIMESTAMP_FILES,
     TRUTH_FILE,
-    VELO_TO_CAM,
     FrameDataError,
-    calibration_dir,
     file_identity,
     frame_files,
     frame_pairs,

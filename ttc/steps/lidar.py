@@ -55,7 +55,7 @@ def lane_mask(points: np.ndarray, crop: LaneCropParams) -> np.ndarray:
 def project_to_image(xyz: np.ndarray, velo_to_image: np.ndarray) -> np.ndarray:
     """Pixel coordinates (N × 2: u, v) of Velodyne points (N × 3, metres).
 
-    ``velo_to_image`` is the 3 × 4 matrix of :attr:`ttc.io.frames.Calibration.velo_to_image`.
+    ``velo_to_image`` is the 3 × 4 matrix of :attr:`ttc.io.calibration.Calibration.velo_to_image`.
     Points behind the camera get NaN.
     """
     xyz = np.asarray(xyz, dtype=np.float64)
