@@ -17,7 +17,13 @@ from ttc import evaluation as ev
 from ttc.engine.cache import StageCache, Task, cache_key
 from ttc.evaluation import lead_distance
 from ttc.evaluation import reference as reference_module
-from ttc.io.frames import LIDAR_DIR, file_identity, frame_files, read_frame_times, read_lidar_scan
+from ttc.io.frames import (
+    file_identity,
+    frame_files,
+    read_frame_times,
+    read_lidar_scan,
+    recording_frames,
+)
 
 #: Bump to invalidate every cached reference (the key also holds the source of ttc/evaluation/lead_distance.py and reference.py).
 REFERENCE_CACHE_VERSION = 1
@@ -53,9 +59,10 @@ def reference_task(sequence_dir: Path) -> Task:
     (:func:`reference_for_sequence`), at the recording's real frame times when it ships a
     ``timestamps.txt`` (:func:`ttc.io.frames.read_frame_times`); key: the scans' identities, the
     frame times and the source of ``ttc/evaluation/lead_distance.py`` and ``reference.py``."""
-    last = len(list((Path(sequence_dir) / LIDAR_DIR).glob("*.bin"))) - 1
+    frames = recording_frames(sequence_dir)  # any layout (KITTI raw, Udacity, odometry)
+    last = frames[-1] if frames else -1
     if last < 1:
-        raise FileNotFoundError(f"no lidar scans under {Path(sequence_dir) / LIDAR_DIR}")
+        raise FileNotFoundError(f"fewer than two frames under {Path(sequence_dir)}")
     times = read_frame_times(sequence_dir)
 
     def compute() -> dict[str, np.ndarray]:

@@ -108,3 +108,13 @@ def test_calibration_errors_name_the_file_and_key(seq, tmp_path, edit, problem) 
     with pytest.raises(FrameDataError) as info:
         load_calibration(copy)
     assert str(info.value) == f"{copy / 'calib.txt'}: {problem}"
+
+
+def test_the_reference_covers_every_frame_of_an_odometry_sequence(seq, tmp_path) -> None:
+    """The reference (summary, report) finds the frames of the odometry layout (it counted
+    files under velodyne_points/data only and raised)."""
+    from experiments.reference_store import sequence_reference
+
+    reference = sequence_reference(seq, StageCache(tmp_path))
+    assert reference["frame"].tolist() == list(range(41))
+    assert np.isfinite(reference["time_s"]).all()
