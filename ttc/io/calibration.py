@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ttc.io import kitti_odometry
-from ttc.io.frame_errors import FrameDataError
+from ttc.io.calib_text import matrix, read_calibration_file
 
 CAM_TO_CAM = "calib_cam_to_cam.txt"
 VELO_TO_CAM = "calib_velo_to_cam.txt"
@@ -37,75 +37,6 @@ class Calibration:
         r_rect = np.eye(4)
         r_rect[:3, :3] = self.r_rect_00
         return self.p_rect @ r_rect @ self.velo_to_cam
-
-
-def calibration_entries(text: str, source: Path | str = "<text>") -> dict[str, str]:
-    """The ``key: value`` lines of a calibration file as raw strings (no parsing)."""
-    entries: dict[str, str] = {}
-    for line in text.splitlines():
-        key, sep, rest = line.partition(":")
-        if sep:
-            entries[key.strip()] = rest.strip()
-    if not entries:
-        raise FrameDataError(source, "no 'key: numbers' lines found")
-    return entries
-
-
-def _numbers(entries: dict[str, str], key: str, path: Path | str) -> np.ndarray:
-    """The entry ``key`` as finite float64 numbers; an error naming file, key and value else."""
-    raw = entries[key]
-    try:
-        values = np.array([float(word) for word in raw.split()], dtype=np.float64)
-    except ValueError:
-        bad = next(w for w in raw.split() if not _is_float(w))
-        raise FrameDataError(path, f"'{key}' has a non-numeric value {bad!r}") from None
-    if not np.isfinite(values).all():
-        bad = raw.split()[int(np.flatnonzero(~np.isfinite(values))[0])]
-        raise FrameDataError(path, f"'{key}' has a non-finite value {bad!r}")
-    return values
-
-
-def _is_float(word: str) -> bool:
-    try:
-        float(word)
-    except ValueError:
-        return False
-    return True
-
-
-def parse_calibration_text(text: str, source: Path | str = "<text>") -> dict[str, np.ndarray]:
-    """Parse ``key: v1 v2 ...`` lines into finite float arrays.
-
-    Entries whose every word is non-numeric (``calib_time: 15-Mar-2012 11:37:16``) are left
-    out; an entry mixing numbers with a non-numeric word (``7.2l5377e+02``) or holding a
-    non-finite number raises :class:`FrameDataError` naming the file, key and value.
-    """
-    entries = calibration_entries(text, source)
-    values: dict[str, np.ndarray] = {}
-    for key, raw in entries.items():
-        if raw and not any(_is_float(word) for word in raw.split()):
-            continue  # a date or a name, not numbers
-        values[key] = _numbers(entries, key, source)
-    return values
-
-
-def _read_calibration_file(path: Path) -> dict[str, str]:
-    if not path.is_file():
-        raise FrameDataError(path, "calibration file not found")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FrameDataError(path, f"unreadable calibration file ({exc})") from exc
-    return calibration_entries(text, path)
-
-
-def _matrix(entries: dict[str, str], key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
-    if key not in entries:
-        raise FrameDataError(path, f"missing entry '{key}'")
-    values = _numbers(entries, key, path)
-    if values.size != shape[0] * shape[1]:
-        raise FrameDataError(path, f"'{key}' has {values.size} numbers, expected {shape}")
-    return values.reshape(shape)
 
 
 def calibration_dir(sequence_dir: Path | str) -> Path:
@@ -135,15 +66,15 @@ def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") ->
         return Calibration(p_rect, np.eye(3), velo_to_cam, size, projection)
     sequence_dir = calibration_dir(sequence_dir)
     cam_path, velo_path = sequence_dir / CAM_TO_CAM, sequence_dir / VELO_TO_CAM
-    cam = _read_calibration_file(cam_path)
-    velo = _read_calibration_file(velo_path)
+    cam = read_calibration_file(cam_path)
+    velo = read_calibration_file(velo_path)
     velo_to_cam = np.eye(4)
-    velo_to_cam[:3, :3] = _matrix(velo, "R", (3, 3), velo_path)
-    velo_to_cam[:3, 3] = _matrix(velo, "T", (3, 1), velo_path)[:, 0]
-    size = _matrix(cam, "S_rect_02", (1, 2), cam_path)[0] if "S_rect_02" in cam else (1242, 375)
+    velo_to_cam[:3, :3] = matrix(velo, "R", (3, 3), velo_path)
+    velo_to_cam[:3, 3] = matrix(velo, "T", (3, 1), velo_path)[:, 0]
+    size = matrix(cam, "S_rect_02", (1, 2), cam_path)[0] if "S_rect_02" in cam else (1242, 375)
     return Calibration(
-        p_rect=_matrix(cam, projection, (3, 4), cam_path),
-        r_rect_00=_matrix(cam, "R_rect_00", (3, 3), cam_path),
+        p_rect=matrix(cam, projection, (3, 4), cam_path),
+        r_rect_00=matrix(cam, "R_rect_00", (3, 3), cam_path),
         velo_to_cam=velo_to_cam,
         image_size=(int(size[0]), int(size[1])),
         projection=projection,

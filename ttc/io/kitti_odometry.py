@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ttc.io.calib_text import matrix, read_calibration_file
 from ttc.io.frame_errors import FrameDataError
 
 IMAGE_DIR = Path("image_2")
@@ -66,47 +67,6 @@ def frames_on_disk(sequence_dir: Path | str) -> list[int]:
     return sorted(found)
 
 
-def _entries(path: Path) -> dict[str, str]:
-    """The ``key: numbers`` lines of ``calib.txt`` as raw strings."""
-    if not path.is_file():
-        raise FrameDataError(path, "calibration file not found")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FrameDataError(path, f"unreadable calibration file ({exc})") from exc
-    entries = {}
-    for line in text.splitlines():
-        key, sep, rest = line.partition(":")
-        if sep:
-            entries[key.strip()] = rest.strip()
-    return entries
-
-
-def _matrix_3x4(entries: dict[str, str], key: str, path: Path) -> np.ndarray:
-    """Entry ``key`` as a finite 3 × 4 matrix; an error naming the file and key else."""
-    if key not in entries:
-        raise FrameDataError(path, f"missing entry '{key}'")
-    words = entries[key].split()
-    try:
-        values = np.array([float(w) for w in words], dtype=np.float64)
-    except ValueError:
-        bad = next(w for w in words if not _is_float(w))
-        raise FrameDataError(path, f"'{key}' has a non-numeric value {bad!r}") from None
-    if not np.isfinite(values).all():
-        raise FrameDataError(path, f"'{key}' has a non-finite value")
-    if values.size != 12:
-        raise FrameDataError(path, f"'{key}' has {values.size} numbers, expected 12 (3 × 4)")
-    return values.reshape(3, 4)
-
-
-def _is_float(word: str) -> bool:
-    try:
-        float(word)
-    except ValueError:
-        return False
-    return True
-
-
 def read_calibration(sequence_dir: Path | str, projection: str) -> tuple[np.ndarray, np.ndarray]:
     """``(P, velo_to_cam)`` of the sequence: ``P`` (3 × 4, pixels) the rectified projection
     ``projection`` names (:data:`PROJECTIONS`: ``P_rect_02`` -> ``P2``), ``velo_to_cam``
@@ -115,10 +75,10 @@ def read_calibration(sequence_dir: Path | str, projection: str) -> tuple[np.ndar
     if projection not in PROJECTIONS:
         raise ValueError(f"projection must be one of {tuple(PROJECTIONS)}, got {projection!r}")
     path = Path(sequence_dir) / CALIB
-    entries = _entries(path)
+    entries = read_calibration_file(path)
     velo_to_cam = np.eye(4)
-    velo_to_cam[:3, :] = _matrix_3x4(entries, "Tr", path)
-    return _matrix_3x4(entries, PROJECTIONS[projection], path), velo_to_cam
+    velo_to_cam[:3, :] = matrix(entries, "Tr", (3, 4), path)
+    return matrix(entries, PROJECTIONS[projection], (3, 4), path), velo_to_cam
 
 
 def image_size(sequence_dir: Path | str) -> tuple[int, int]:
