@@ -118,3 +118,20 @@ def test_the_reference_covers_every_frame_of_an_odometry_sequence(seq, tmp_path)
     reference = sequence_reference(seq, StageCache(tmp_path))
     assert reference["frame"].tolist() == list(range(41))
     assert np.isfinite(reference["time_s"]).all()
+
+
+def test_the_reference_follows_the_van_and_finds_no_lead_on_drive_0009(
+    seq, data_dir, tmp_path
+) -> None:
+    """The reference's crop reaches the van 22 m ahead (the Udacity 20 m found no lead on 40
+    of 41 frames) and still finds nothing ahead on drive 0009."""
+    from experiments.reference_store import sequence_reference
+
+    reference = sequence_reference(seq, StageCache(tmp_path)).set_index("frame")
+    assert (reference["lead"] == "ok").sum() >= 40
+    assert reference.loc[0, "distance_m"] == pytest.approx(22.1, abs=0.1)
+    judged = reference["judgeable"] & np.isfinite(reference["ttc_ref_s"])
+    assert judged.sum() >= 10 and (reference.loc[judged, "ttc_ref_s"] > 24).all()
+    drive = data_dir / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0009_sync"
+    empty = sequence_reference(drive, StageCache(tmp_path))
+    assert (empty["lead"] == "no_lead").all() and not empty["judgeable"].any()

@@ -31,6 +31,12 @@ from ttc.evaluation.lead_status import lead_segments, lead_status
 from ttc.io.frames import SENSOR_RATE_HZ
 from ttc.steps.lidar import LaneCropParams
 
+#: The ego lane the reference looks for the lead vehicle in: the Udacity crop (|y| ≤ 2 m, the
+#: z band) reaching 40 m ahead instead of 20, so it finds a lead followed at a distance
+#: (KITTI odometry sequence 04: a van 20.5–22.2 m ahead; with 20 m no lead on 40 of 41 frames).
+#: Drive 0052's reference is identical with 20, 30, 40 or 60 m (the lead is 4.4–8 m ahead and
+#: the largest vertical cluster), and drive 0009 (no vehicle ahead) has no lead on any frame.
+REFERENCE_CROP = LaneCropParams(max_x=40.0)
 #: Closing speed (m/s) below which the reference says "no collision course" (+inf).
 MIN_CLOSING_SPEED_MPS = 0.1
 
@@ -339,7 +345,8 @@ def reference_for_sequence(
     times: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """Reference TTC of a recording from the scans of its consecutive frames ``(frame,
-    points)`` (every frame, first to last).
+    points)`` (every frame, first to last); the lead is looked for in ``crop`` (default
+    :data:`REFERENCE_CROP`).
 
     Computed over the whole recording at the sensor rate, whatever range or step a sweep
     used, so that the smoothing sees the same data for every sweep; join on ``frame``.
@@ -347,7 +354,7 @@ def reference_for_sequence(
     ``timestamps.txt``; default ``dt`` apart. Columns: those of :func:`lead_distance_series`
     and :func:`reference_ttc`.
     """
-    series = lead_distance_series(scans, crop)
+    series = lead_distance_series(scans, crop if crop is not None else REFERENCE_CROP)
     first, last = int(series["frame"].iloc[0]), int(series["frame"].iloc[-1])
     span = None if times is None else np.asarray(times, dtype=float)[first : last + 1]
     return reference_ttc(series, dt, window, polyorder, min_closing_speed, span)
