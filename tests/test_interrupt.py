@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.sweep.interrupt import done_count, interrupted_line
+from experiments.sweep.interrupt import SigintSeen, done_count, interrupted_line, watch_sigint
 from tests.conftest import PROJECT_ROOT
 
 #: 3 detectors x 2 descriptors x 2 filters on frames 0-3: 6 batches of 2 settings.
@@ -38,6 +38,25 @@ def test_the_line_counts_the_records(tmp_path: Path) -> None:
     assert done_count(tmp_path, ["a", "b", "c"]) == 2
     assert "2 of 3 settings done" in interrupted_line(tmp_path, ["a", "b", "c", "c"])
     assert "before the sweep was planned: nothing launched" in interrupted_line(tmp_path, [])
+
+
+def test_sigint_is_remembered_when_a_library_turns_it_into_another_error() -> None:
+    """Ctrl-C inside OmegaConf (Hydra composing a config) came out as an ``AttributeError``
+    and the sweep exited 1 with a traceback (CI, stop 25): the sweeper asks whether SIGINT
+    arrived instead of matching the exception's type."""
+    seen = SigintSeen()
+    with pytest.raises(AttributeError), watch_sigint(seen):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)  # the handler runs here
+        except KeyboardInterrupt:
+            raise AttributeError("'NoneType' object has no attribute '_invalidate'") from None
+    assert seen.seen
+    quiet = SigintSeen()
+    with pytest.raises(ValueError), watch_sigint(quiet):
+        raise ValueError("a real error")
+    assert not quiet.seen
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 def descendants(pid: int) -> list:

@@ -6,10 +6,13 @@ command resumes them (the planner launches no job for a complete run)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from types import FrameType
 from typing import NoReturn
 
 from experiments.callbacks import INTERRUPTED_STATUS, stop_progress
@@ -44,3 +47,39 @@ def exit_interrupted(sweep_dir: Path, run_ids: Sequence[str]) -> NoReturn:
     sys.stdout.flush()
     print(interrupted_line(sweep_dir, run_ids), file=sys.stderr, flush=True)
     raise SystemExit(INTERRUPTED_STATUS)
+
+
+class SigintSeen:
+    """Whether SIGINT arrived while :func:`watch_sigint` was active."""
+
+    def __init__(self) -> None:
+        self.seen = False
+
+
+@contextlib.contextmanager
+def watch_sigint(state: SigintSeen) -> Iterator[SigintSeen]:
+    """Record that SIGINT arrived, then raise ``KeyboardInterrupt`` as Python does.
+
+    A ``KeyboardInterrupt`` raised inside a library can come out as another exception (one
+    raised inside OmegaConf while Hydra composes a config leaves it half-set and surfaces as
+    an ``AttributeError``): the caller asks ``seen`` instead of matching the exception type.
+    Outside the main thread (no signal handlers there) it only yields."""
+    try:
+        previous = signal.getsignal(signal.SIGINT)
+    except ValueError:  # pragma: no cover - not the main thread
+        yield state
+        return
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        state.seen = True
+        signal.default_int_handler(signum, frame)
+
+    try:
+        signal.signal(signal.SIGINT, handler)
+    except ValueError:  # pragma: no cover - not the main thread
+        yield state
+        return
+    try:
+        yield state
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -26,9 +26,11 @@ from __future__ import annotations
 import contextlib
 import logging
 import shutil
+import signal
 import sys
 import threading
 from collections.abc import Sequence
+from multiprocessing import resource_tracker
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +38,7 @@ from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrid
 from hydra_plugins.hydra_joblib_launcher.joblib_launcher import JoblibLauncher
 from joblib import Parallel, delayed, effective_n_jobs
 from joblib.externals.loky import get_reusable_executor
+from joblib.externals.loky.backend import resource_tracker as loky_resource_tracker
 from joblib.externals.loky.process_executor import TerminatedWorkerError
 from omegaconf import DictConfig, open_dict
 
@@ -109,7 +112,15 @@ class SweepLauncher(JoblibLauncher):
         workers = effective_n_jobs(options.get("n_jobs"))
 
         def start() -> None:
-            """Run :func:`warm` once in each worker."""
+            """Run :func:`warm` once in each worker. SIGINT is blocked in this thread, so in
+            the workers it starts (the mask is inherited through fork and exec) and in loky's
+            manager thread: Ctrl-C reaches the main process only, which stops the workers
+            (:meth:`stop`), instead of a worker printing a ``KeyboardInterrupt`` traceback
+            from the middle of its imports. The resource trackers start first: starting one
+            unblocks SIGINT in the calling thread."""
+            loky_resource_tracker.ensure_running()
+            resource_tracker.ensure_running()
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
             try:
                 Parallel(**options)(delayed(warm)(state, modules) for _ in range(workers))
             except BaseException as exc:  # Ctrl-C too: the main thread says what it kept

@@ -35,7 +35,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.plugins import Plugins
@@ -48,7 +48,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from experiments.sweep.compose import Composer, variant_jobs
 from experiments.sweep.earlier import EarlierPlan
-from experiments.sweep.interrupt import exit_interrupted
+from experiments.sweep.interrupt import SigintSeen, exit_interrupted, watch_sigint
 from experiments.sweep.jobs import batches, expand
 from experiments.sweep.kept import (
     compositions_key,
@@ -156,15 +156,25 @@ class SweepSweeper(Sweeper):
         Ctrl-C ends the sweep with one line (exit status 130)."""
         assert self.config is not None and self.launcher is not None
         sweep_dir = Path(self.config.hydra.sweep.dir)
+        sigint = SigintSeen()
         try:
-            return self._sweep(arguments, sweep_dir)
+            with watch_sigint(sigint):
+                return self._sweep(arguments, sweep_dir)
         except KeyboardInterrupt:
-            if hasattr(self.launcher, "stop"):
-                self.launcher.stop()
-            exit_interrupted(sweep_dir, self.run_ids)
+            self._interrupted(sweep_dir)
+        except Exception:  # Ctrl-C inside Hydra/OmegaConf can surface as another exception
+            if not sigint.seen:
+                raise
+            self._interrupted(sweep_dir)
         finally:  # workers warmed up for a plan with no job, or one that failed validation
             if hasattr(self.launcher, "release"):
                 self.launcher.release()
+
+    def _interrupted(self, sweep_dir: Path) -> NoReturn:
+        """Stop the workers, print the one line and exit with status 130."""
+        if hasattr(self.launcher, "stop"):
+            self.launcher.stop()
+        exit_interrupted(sweep_dir, self.run_ids)
 
     def _sweep(self, arguments: list[str], sweep_dir: Path) -> list[Sequence[JobReturn]]:
         """Expand the jobs, then plan and launch them batch by batch; the returns."""
