@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.distance import pdist
 
 from ttc import reasons
 from ttc.steps.camera_ttc import (
@@ -121,3 +122,20 @@ def test_caller_errors_raise() -> None:
 def test_params_validation(kwargs: dict) -> None:
     with pytest.raises(ValueError):
         CameraTTCParams(**kwargs)
+
+
+def test_the_pair_distance_can_follow_the_box_width() -> None:
+    """``min_box_fraction``: the least pair distance is that fraction of the box width when it
+    exceeds ``min_dist`` (a 40 px box 21 m ahead and a 200 px box 8 m ahead alike)."""
+    rng = np.random.default_rng(3)
+    prev = rng.uniform(0, 40, size=(60, 2))
+    curr = scaled(prev, 1.01)
+    d = pdist(curr)
+    params = CameraTTCParams(min_dist=0.0, min_box_fraction=0.25)
+    assert params.threshold(40.0) == 10.0 and params.threshold(0.0) == 0.0
+    assert camera_ttc(prev, curr, DT, params, box_width=40.0).n_pairs == int((d >= 10.0).sum())
+    larger = CameraTTCParams(min_dist=12.0, min_box_fraction=0.25)  # the larger one applies
+    assert camera_ttc(prev, curr, DT, larger, box_width=40.0).n_pairs == int((d >= 12.0).sum())
+    assert camera_ttc(prev, curr, DT, params).n_pairs == len(d)  # no box: absolute only
+    with pytest.raises(ValueError, match="min_box_fraction"):
+        CameraTTCParams(min_box_fraction=1.5)

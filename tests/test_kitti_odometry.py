@@ -135,3 +135,29 @@ def test_the_reference_follows_the_van_and_finds_no_lead_on_drive_0009(
     drive = data_dir / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0009_sync"
     empty = sequence_reference(drive, StageCache(tmp_path))
     assert (empty["lead"] == "no_lead").all() and not empty["judgeable"].any()
+
+
+def test_the_recordings_own_settings_find_the_van_on_every_pair(seq) -> None:
+    """``dataset=kitti_odometry`` sets its lidar crop and camera pair distance (its YAML says
+    why): with drive 0052's (20 m, z ≤ −0.9 m, 100 px) the van was the lead on 9 of 40 pairs
+    and no camera pair qualified; with its own it is the lead on every pair, its lidar rear
+    is where measured, and the camera uses pairs ≥ 0.25 × the box width apart."""
+    cfg = composed(["dataset=kitti_odometry", "dataset.last=10"])
+    assert (cfg.lidar.crop.max_x, cfg.lidar.crop.max_z) == (40.0, 0.0)
+    assert (cfg.camera_ttc.min_dist, cfg.camera_ttc.min_box_fraction) == (0.0, 0.25)
+    rows = run_setting(settings_from_config(cfg), frame_range_from_config(cfg), StageCache(None))
+    lead = rows[rows["is_lead"]].set_index("frame")
+    assert lead.index.tolist() == list(range(1, 11))
+    assert lead["d_curr"].between(21.9, 22.4).all()  # 22.1 m at frame 0 (lidar, measured)
+    assert (lead["lidar_points_curr"] >= 50).all()
+    assert (lead["box_w"] < 60).all() and (lead["camera_pairs"] > 0).all()
+    udacity = composed(["dataset=kitti_odometry", "dataset.last=10", "lidar.crop.max_z=-0.9",
+                        "lidar.crop.max_x=20", "camera_ttc.min_dist=100",
+                        "camera_ttc.min_box_fraction=0"])  # fmt: skip
+    old = run_setting(settings_from_config(udacity), frame_range_from_config(udacity),
+                      StageCache(None))  # fmt: skip
+    assert not old["is_lead"].any()
+    assert composed(["lidar.crop.max_x=30", "dataset=kitti_odometry"]).lidar.crop.max_x == 30
+    default = composed([])  # drive 0052's settings stay
+    assert (default.lidar.crop.max_x, default.lidar.crop.max_z) == (20.0, -0.9)
+    assert (default.camera_ttc.min_dist, default.camera_ttc.min_box_fraction) == (100.0, 0.0)

@@ -83,7 +83,13 @@ AXIS_TABLE: tuple[Axis, ...] = (
     Axis("box_matching", "step", BoxMatchingParams, "FP.1 strategy"),
     Axis("lidar_ttc", "step", LidarTTCParams, "FP.2 estimator", only_sensor="lidar"),
     Axis("keypoint_filter", "step", KeypointFilterParams, "FP.3 outlier filter"),
-    Axis("camera_ttc", "step", CameraTTCParams, "FP.4 estimator"),
+    Axis(
+        "camera_ttc",
+        "step",
+        CameraTTCParams,
+        "FP.4 estimator",
+        neutral=(("min_box_fraction", 0.0),),
+    ),
     Axis(
         "fusion",
         "fusion",

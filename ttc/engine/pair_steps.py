@@ -208,7 +208,9 @@ class PairSteps:
         if fp4_key not in self.memo["fp4"]:
             kept_prev = self.xy_prev[selected.prev_idx[filt.kept]]
             kept_curr = self.xy_curr[selected.curr_idx[filt.kept]]
-            dt = self.dt
-            cam, ms_fp4 = _timed(lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc))
+            dt, width = self.dt, float(self.obj[self.curr]["roi"][curr_box][2])
+            cam, ms_fp4 = _timed(
+                lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc, box_width=width)
+            )
             self.memo["fp4"][fp4_key] = camera_columns(cam, filt, ms_fp3, ms_fp4)
         return self.memo["fp4"][fp4_key]
