@@ -10,9 +10,7 @@ from pathlib import Path
 import pandas as pd
 
 from experiments.config import setting_hash
-
-#: ``dataset`` keys that name the drive and its frames: left out of the pooled setting id.
-DRIVE_KEYS = ("sequence", "date", "drive", "first", "last")
+from ttc.settings import SETTING_AXES, only_sensor_axes
 
 
 def recording_of(runs: pd.DataFrame) -> pd.Series:
@@ -34,16 +32,44 @@ def drive_name(sequence: str) -> str:
     return Path(sequence).name.removesuffix("_sync")
 
 
-def setting_of(runs: pd.DataFrame) -> pd.Series:
-    """The id of each run's setting without its drive (:data:`DRIVE_KEYS` left out of the
-    stored setting's hash): equal for one setting's runs on every drive, by run id."""
+def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
+    """``{"a": {"b": 1}}`` → ``{"a.b": 1}`` (lists and scalars are leaves)."""
+    out: dict[str, object] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = json.dumps(value, sort_keys=True)
+    return out
+
+
+def recording_entries(runs: pd.DataFrame) -> set[str]:
+    """The setting entries (dotted keys) that belong to the recording, not to the setting:
+    those with one value among each recording's runs, except the axes' choices
+    (``detector.name``, ...). The dataset (name, frames, drive) is one; so is what a recording
+    sets for itself (``conf/dataset/kitti_odometry.yaml``: its lidar crop, its camera pair
+    distance); an entry a sweep varies on any recording is a setting's."""
+    flat = pd.DataFrame([_flat(json.loads(c)) for c in runs["config"]], index=runs.index)
+    per_recording = flat.groupby(recording_of(runs).to_numpy(), dropna=False)
+    constant = per_recording.nunique(dropna=False).le(1).all()
+    choices = {f"{axis}.name" for axis in SETTING_AXES if axis != "dataset"}
+    return {key for key, fixed in constant.items() if fixed and key not in choices}
+
+
+def setting_of(runs: pd.DataFrame, sensor: str | None = None) -> pd.Series:
+    """The id of each run's setting without its recording (:func:`recording_entries` left out
+    of the stored setting's hash): equal for one setting's runs on every recording, and never
+    equal for two runs of one recording. ``sensor="camera"``: the axes that change only the
+    lidar or the fused TTC are left out too, so runs that differ only there (same camera TTC)
+    share an id. By run id."""
+    left_out = recording_entries(runs)
+    other = () if sensor != "camera" else (*only_sensor_axes("lidar"), *only_sensor_axes("fused"))
+    prefixes = tuple(f"{axis}." for axis in other)
 
     def key(config: str) -> str:
-        setting = json.loads(config)
-        setting["dataset"] = {
-            k: v for k, v in setting["dataset"].items() if k not in DRIVE_KEYS
-        }  # fmt: skip
-        return setting_hash(setting)
+        flat = _flat(json.loads(config))
+        kept = {k: v for k, v in sorted(flat.items()) if k not in left_out}
+        return setting_hash({k: v for k, v in kept.items() if not k.startswith(prefixes)})
 
     return pd.Series([key(c) for c in runs["config"]], index=runs["run_id"].to_numpy())
 
@@ -61,12 +87,15 @@ def runs_drive_rankings(
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
     ok = runs[runs["status"] == "ok"]
-    frames = frames[frames["run_id"].isin(ok["run_id"])]
+    setting = setting_of(ok, sensor)
     drive = recording_of(ok).map(drive_name)
+    first = ~pd.DataFrame({"drive": drive, "setting": setting}).duplicated().to_numpy()
+    ok, setting, drive = ok[first], setting[first], drive[first]  # one run per camera TTC
+    frames = frames[frames["run_id"].isin(ok["run_id"])]
     return ev.drive_rankings(
         frames,
         drive.to_dict(),
-        setting_of(ok).to_dict(),
+        setting.to_dict(),
         references,
         sensor,
         ev.N_BOOT if n_boot is None else n_boot,

@@ -15,7 +15,7 @@ from experiments.paths import default_cache_dir, default_data_root
 from experiments.recordings import recording_of, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache, Task, cache_key
-from ttc.evaluation import lead_distance
+from ttc.evaluation import lead_distance, lead_status
 from ttc.evaluation import reference as reference_module
 from ttc.io.frames import (
     file_identity,
@@ -25,7 +25,7 @@ from ttc.io.frames import (
     recording_frames,
 )
 
-#: Bump to invalidate every cached reference (the key also holds the source of ttc/evaluation/lead_distance.py and reference.py).
+#: Bump to invalidate every cached reference (the key also holds the source of ttc/evaluation/lead_distance.py, lead_status.py and reference.py).
 REFERENCE_CACHE_VERSION = 1
 
 
@@ -42,7 +42,7 @@ def sequence_of(runs: pd.DataFrame) -> str:
 
 def _reference_key(sequence_dir: Path, last: int, times: np.ndarray | None) -> str:
     scans = [file_identity(frame_files(sequence_dir, i).scan) for i in range(last + 1)]
-    code = "".join(inspect.getsource(m) for m in (lead_distance, reference_module))
+    code = "".join(inspect.getsource(m) for m in (lead_distance, lead_status, reference_module))
     source = hashlib.sha256(code.encode()).hexdigest()
     clock = None if times is None else hashlib.sha256(times.tobytes()).hexdigest()
     return cache_key("reference", REFERENCE_CACHE_VERSION, source, scans, clock)

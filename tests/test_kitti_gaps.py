@@ -20,6 +20,7 @@ from experiments.config import (
     config_problems,
     frame_range_from_config,
     register_configs,
+    run_id,
     settings_from_config,
 )
 from experiments.run import no_lead_line
@@ -121,3 +122,13 @@ def test_a_blank_line_inside_the_range_costs_its_pairs_only(drive_0009, tmp_path
     assert no_lead_line(rows) == (
         "no lead vehicle in frames 0–10: 8 of 10 pairs `no_lead_box`, 2 of 10 pairs `frame_error`"
     )
+
+
+def test_the_no_lead_drive_has_its_own_option_with_the_same_run_ids() -> None:
+    """``dataset=kitti_raw_0009`` (what ``+experiment=recordings`` sweeps) is the same
+    recording, settings and run id as ``dataset=kitti_raw dataset.drive=0009``."""
+    option = composed(["dataset=kitti_raw_0009", "detector=orb"])
+    spelled = composed(["dataset=kitti_raw", "dataset.drive=0009", "detector=orb"])
+    assert option.dataset.sequence.endswith("2011_09_26_drive_0009_sync")
+    assert run_id(option) == run_id(spelled)
+    assert run_id(option) != run_id(composed(["dataset=kitti_raw", "detector=orb"]))

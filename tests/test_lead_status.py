@@ -87,3 +87,26 @@ def test_frames_whose_lead_disappears_are_no_lead_and_not_judged(empty_lane_driv
     assert (
         "(`no_lead`): 10, 11;" in text and "(`lead_change`: a cut-in or lane change): none" in text
     )
+
+
+def test_one_empty_scan_between_two_agreeing_measurements_is_a_dropout() -> None:
+    """KITTI odometry sequence 04: the van 21 m ahead leaves no point in the lane crop of
+    frame 20 alone (a complete scan); it is a missed measurement, not an empty lane, so the
+    pairs 20 and 21 are judged and a lead TTC there is no false alarm. Two empty scans in a
+    row, or one between distances that disagree, stay ``no_lead``."""
+    t = np.arange(6) * 0.1
+    scans = np.full(6, 120_000)
+    one = np.array([21.8, 21.75, np.nan, 21.7, 21.65, 21.6])
+    assert ev.lead_status(one, t, scans).tolist() == ["ok"] * 6
+    two = np.array([21.8, np.nan, np.nan, 21.7, 21.65, 21.6])
+    assert ev.lead_status(two, t, scans).tolist() == ["ok", "no_lead", "no_lead", "ok", "ok", "ok"]
+    jump = np.array([21.8, 21.75, np.nan, 9.0, 8.95, 8.9])  # another car 0.2 s later
+    assert ev.lead_status(jump, t, scans)[2] == "no_lead"
+
+
+def test_sequence_04s_reference_follows_the_van_on_every_frame(data_dir, tmp_path) -> None:
+    seq = data_dir / "kitti_odometry" / "sequences" / "04"
+    reference = sequence_reference(seq, StageCache(tmp_path))
+    assert (reference["lead"] == "ok").all()
+    assert np.isnan(reference.loc[reference["frame"] == 20, "distance_m"]).all()
+    assert reference["distance_smooth_m"].between(20.4, 22.3).all()

@@ -22,7 +22,7 @@ from experiments.report.header import provenance_markdown
 from experiments.report.html.page import markdown_html, page, write_assets
 from experiments.report.load import SweepData
 from ttc import evaluation as ev
-from ttc.settings import AXES
+from ttc.settings import AXES, only_sensor_axes
 
 SENSORS = ("camera", "lidar")
 #: How many of each recording's best settings are followed onto the others.
@@ -38,16 +38,52 @@ def wide_ranks(table: pd.DataFrame, sensor: str) -> pd.DataFrame:
     part = table[table["sensor"] == sensor]
     drives = list(dict.fromkeys(part["drive"]))
     pooled = part[part["drive"] == ev.POOLED].set_index("setting")
-    axes = [c for c in ("detector", "descriptor", "matcher", "selector", "lidar_ttc") if c in part]
+    axes = [c for c in _label_axes(sensor) if c in part and part[c].nunique(dropna=False) > 1]
     first = part.drop_duplicates("setting").set_index("setting")[axes]
     out = first.copy()
     for drive in drives:
         mine = part[part["drive"] == drive].set_index("setting")
-        out[f"rank_{drive}"] = mine["rank"]
+        judged = mine[key].notna().any()  # a recording with no judged pair ranks nothing
+        out[f"rank_{drive}"] = mine["rank"] if judged else float("nan")
         out[f"mid_{drive}"] = mine[key]
     out = out.reset_index().assign(sensor=sensor)
     order = pooled["rank"].reindex(out["setting"]).to_numpy()
     return out.assign(_order=order).sort_values("_order", kind="stable").drop(columns="_order")
+
+
+def ttc_ranges(data: SweepData, references: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """Per run and reference-TTC range (:func:`ttc.evaluation.binned_metrics`, TSTTC-style
+    < 6 s, 6–12, 12–24, > 24 s) of every recording with judged pairs, with its ``drive``."""
+    ok = data.runs[data.runs["status"] == "ok"]
+    drive = recording_of(ok).map(drive_name)
+    parts = []
+    for name, reference in references.items():
+        mine = data.frames[data.frames["run_id"].isin(drive.index[drive == name])]
+        if mine.empty:
+            continue
+        binned = ev.binned_metrics(ev.judged_frames(mine, reference))
+        if not binned.empty:
+            parts.append(binned.assign(drive=name))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+def _range_lines(binned: pd.DataFrame) -> list[str]:
+    """The per-range section: per recording and range, the judged pairs and, per sensor, the
+    best run's and the median run's median MiD and the median invalid rate."""
+    if binned.empty:
+        return []
+    groups = binned.groupby(["drive", "ttc_bin"], observed=True)
+    summary = pd.DataFrame({"pairs": groups["n_frames"].max()})
+    for s in ("camera", "lidar"):
+        summary[f"{s}_mid_best"] = groups[f"{s}_mid_median"].min()
+        summary[f"{s}_mid_median_run"] = groups[f"{s}_mid_median"].median()
+        summary[f"{s}_invalid_median_run"] = groups[f"{s}_invalid_rate"].median()
+    return ["## by reference TTC range", "",
+            "Judged frame pairs binned by their reference TTC (TSTTC-style ranges; "
+            "`ttc.evaluation.ttc_bins`): per recording and range, the best run's and the median "
+            "run's median MiD (10⁻⁴) and the median run's invalid rate. Per run: "
+            "recordings_ttc_ranges.csv.", "",
+            markdown_table(summary.reset_index().round(3)), ""]  # fmt: skip
 
 
 def false_alarms(data: SweepData, references: dict[str, pd.DataFrame]) -> pd.DataFrame:
@@ -70,17 +106,30 @@ def false_alarms(data: SweepData, references: dict[str, pd.DataFrame]) -> pd.Dat
 
 
 def with_labels(table: pd.DataFrame) -> pd.DataFrame:
-    """``table`` with ``setting`` replaced by a readable label: the values of the axes that
-    vary among its settings joined by ``/`` (the id when none varies or labels collide)."""
-    axes = [a for a in AXES if a in table and table[a].nunique(dropna=False) > 1]
+    """``table`` with ``setting`` replaced by a readable label, per sensor: the values of the
+    axes that vary among its settings joined by ``/`` (the id when none varies or labels
+    collide); the dataset is the recording's, and the camera's label leaves out the axes that
+    change only the lidar or the fused TTC (:func:`experiments.recordings.setting_of`)."""
+    return pd.concat([_labelled(part, sensor) for sensor, part in table.groupby("sensor")])
+
+
+def _labelled(part: pd.DataFrame, sensor: str) -> pd.DataFrame:
+    """:func:`with_labels` of one sensor's rows."""
+    axes = [a for a in _label_axes(sensor) if a in part and part[a].nunique(dropna=False) > 1]
     if not axes:
-        return table
-    label = table[axes].astype(str).agg("/".join, axis=1)
-    if label.groupby(table["setting"]).nunique().max() > 1 or (
-        table.assign(label=label).groupby("label")["setting"].nunique().max() > 1
+        return part
+    label = part[axes].astype(str).agg("/".join, axis=1)
+    if label.groupby(part["setting"]).nunique().max() > 1 or (
+        part.assign(label=label).groupby("label")["setting"].nunique().max() > 1
     ):
-        return table
-    return table.assign(setting=label)
+        return part
+    return part.assign(setting=label)
+
+
+def _label_axes(sensor: str) -> list[str]:
+    """The axes that can tell ``sensor``'s settings apart."""
+    other = set(only_sensor_axes("lidar")) | set(only_sensor_axes("fused"))
+    return [a for a in AXES if a != "dataset" and not (sensor == "camera" and a in other)]
 
 
 def recordings_report(
@@ -92,6 +141,9 @@ def recordings_report(
     table = with_labels(table)
     wide = pd.concat([wide_ranks(table, s) for s in SENSORS], ignore_index=True)
     write_csv(wide, out / "recordings.csv")
+    binned = ttc_ranges(data, references)
+    if not binned.empty:
+        write_csv(binned, out / "recordings_ttc_ranges.csv")
     alarms = false_alarms(data, references)
     if not alarms.empty:
         write_csv(alarms, out / "recordings_false_alarms.csv")
@@ -115,6 +167,7 @@ def recordings_report(
                   markdown_table(ev.best_elsewhere(part, key, BEST)), "",
                   f"In the top {TOP} on every recording: "
                   f"{', '.join(ev.top_everywhere(part, key, TOP)) or 'none'}", ""]  # fmt: skip
+    lines += _range_lines(binned)
     lines += _false_alarm_lines(alarms)
     lines += ["## every setting: rank and median MiD per recording", "",
               markdown_table(wide.drop(columns="sensor").head(40)),

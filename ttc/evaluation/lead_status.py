@@ -11,6 +11,10 @@ Rules, per frame k of the recording (``distance_m`` NaN: no lead cluster found):
 - ``no_lead``: no lead cluster in a *complete* scan (at least :data:`COMPLETE_SCAN_FRACTION`
   of the recording's median scan size). A lead missing from a truncated scan (frame 77 of
   drive 0052) is a missed measurement instead, interpolated within its segment as before.
+  So is a lead missing from complete scans for at most :data:`MAX_DROPOUT_S` between two
+  measurements that agree (within ``lead_change``'s speed): the van 21 m ahead of KITTI
+  odometry sequence 04 leaves no point in the lane crop of frame 20 alone; no lead leaves the
+  lane and comes back at the same distance within a few frames.
 - ``lead_change``: the rear distance jumps from the previous measured frame by more than
   :data:`MAX_RELATIVE_SPEED_MPS` × the time between them: no car followed at traffic speeds
   closes or opens that fast, a different car at another distance does.
@@ -34,6 +38,10 @@ MAX_RELATIVE_SPEED_MPS = 15.0
 #: a lead missing from it is a missed measurement, not an empty lane (frame 77 of drive 0052
 #: holds 62 % of the median).
 COMPLETE_SCAN_FRACTION = 0.8
+#: Longest gap (s) of complete scans without a lead, between two measurements that agree, that
+#: is a missed measurement rather than an empty lane (one missing frame at 10 Hz: two empty
+#: scans in a row stay ``no_lead``).
+MAX_DROPOUT_S = 0.25
 
 
 def lead_status(
@@ -53,6 +61,10 @@ def lead_status(
         complete = points >= COMPLETE_SCAN_FRACTION * np.nanmedian(points)
         status[np.isnan(d) & complete] = NO_LEAD
     measured = np.flatnonzero(np.isfinite(d))
+    for before, k in zip(measured[:-1], measured[1:], strict=True):
+        gap = t[k] - t[before]
+        if k - before > 1 and gap <= MAX_DROPOUT_S and abs(d[k] - d[before]) <= max_speed * gap:
+            status[before + 1 : k] = LEAD_OK  # a dropout: interpolated like a truncated scan
     for before, k in zip(measured[:-1], measured[1:], strict=True):
         if NO_LEAD in status[before + 1 : k]:
             continue  # the lead came back after an empty lane: a new segment anyway
