@@ -3,10 +3,13 @@ rankings with known answers."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
 
+from experiments.recordings import recording_entries, setting_of
 from ttc.evaluation.transfer import (
     best_elsewhere,
     recording_agreement,
@@ -54,3 +57,32 @@ def test_top_everywhere_and_the_sentence() -> None:
     assert sentence.startswith("Kendall's τ between the recordings' rankings is -1.00–1.00;")
     assert "A's best (s0) ranks 1 of 6 on B, 6 of 6 on C" in sentence
     assert sentence.endswith("0 setting(s) are in the top 3 on every recording.")
+
+
+def _runs(rows: list[tuple[str, str, float, str, str]]) -> pd.DataFrame:
+    """Run records: (run id, recording, lidar crop max_x, detector, lidar_ttc) → config."""
+    configs = [
+        json.dumps({"dataset": {"name": seq.split("/")[0], "sequence": seq},
+                    "lidar": {"crop": {"max_x": max_x}},
+                    "detector": {"name": det}, "lidar_ttc": {"name": lid}})
+        for _, seq, max_x, det, lid in rows
+    ]  # fmt: skip
+    return pd.DataFrame({"run_id": [r[0] for r in rows], "config": configs})
+
+
+def test_a_setting_across_recordings_leaves_out_what_each_recording_fixes() -> None:
+    """Sequence 04 sets its own lidar crop (40 m, drive 0052 20 m) and its own dataset name:
+    one setting's runs on both share an id; a crop swept on one recording stays a setting's."""
+    runs = _runs([("a", "kitti/0052", 20.0, "orb", "median"), ("b", "kitti/0052", 20.0, "sift", "median"),
+                  ("c", "odo/04", 40.0, "orb", "median"), ("d", "odo/04", 40.0, "sift", "median"),
+                  ("e", "kitti/0052", 20.0, "orb", "closest"), ("f", "odo/04", 40.0, "orb", "closest")])  # fmt: skip
+    assert recording_entries(runs) == {"dataset.name", "dataset.sequence", "lidar.crop.max_x"}
+    ids = setting_of(runs)
+    assert ids["a"] == ids["c"] and ids["b"] == ids["d"] and ids["e"] == ids["f"]
+    assert len({ids["a"], ids["b"], ids["e"]}) == 3
+    camera = setting_of(runs, "camera")  # lidar_ttc changes only the lidar TTC
+    assert camera["a"] == camera["e"] == camera["f"] and camera["a"] != camera["b"]
+    swept = _runs([("a", "kitti/0052", 20.0, "orb", "median"), ("b", "kitti/0052", 30.0, "orb", "median"),
+                   ("c", "odo/04", 40.0, "orb", "median")])  # fmt: skip
+    assert "lidar.crop.max_x" not in recording_entries(swept)
+    assert setting_of(swept)["a"] != setting_of(swept)["b"]
