@@ -169,7 +169,7 @@ def missing_drive_message(sequence_dir: Path) -> str:
         f"KITTI raw drive not found: {sequence_dir} does not exist.\n"
         "KITTI raw needs registration at https://www.cvlibs.net/datasets/kitti/raw_data.php; "
         "nothing downloads it. Unpack the date's calibration and the drive's synced+rectified "
-        f"archive under {sequence_dir.parents[1]} in the official layout (README, 'Any KITTI "
+        f"archive under {sequence_dir.parents[1]} in the official layout (docs/data.md, 'Any KITTI "
         "raw drive'), or point TTC_DATA_DIR / dataset.root at a folder holding kitti_raw/."
     )
 
@@ -181,6 +181,6 @@ def missing_odometry_message(sequence_dir: Path) -> str:
         "KITTI odometry needs registration at "
         "https://www.cvlibs.net/datasets/kitti/eval_odometry.php; nothing downloads it. Unpack "
         "the colour, Velodyne, calibration and poses archives under "
-        f"{sequence_dir.parents[1]} in the official layout (README, 'KITTI odometry'), or "
+        f"{sequence_dir.parents[1]} in the official layout (docs/data.md, 'KITTI odometry'), or "
         "point TTC_DATA_DIR / dataset.root at a folder holding kitti_odometry/."
     )

@@ -64,7 +64,7 @@ class Plan:
         )  # fmt: skip
 
 
-#: Rough ms per frame of a detector's / descriptor's stage on KITTI (README, per-stage
+#: Rough ms per frame of a detector's / descriptor's stage on KITTI (docs/benchmarks.md, per-stage
 #: benchmarks): jobs are launched most expensive first, so no long job starts last.
 STAGE_MS = {"detector": {"sift": 102, "akaze": 73, "brisk": 64, "harris": 18, "orb": 11,
                          "shitomasi": 10, "fast": 1.4},

@@ -1,6 +1,6 @@
 """The documented schema of a sweep's ``frames.parquet`` (one row per run × frame pair × box pair).
 
-The README's schema table is generated from :data:`FRAME_COLUMNS`
+The schema table of docs/results.md is generated from :data:`FRAME_COLUMNS`
 (``python -m experiments.schema``) and the tests check real sweeps against it.
 """
 
@@ -115,7 +115,7 @@ def schema_problems(frames: pd.DataFrame) -> list[str]:
 
 
 def markdown_table() -> str:
-    """The schema as a markdown table (for the README)."""
+    """The schema as a markdown table (for docs/results.md)."""
     lines = ["| column | type | unit | meaning |", "|---|---|---|---|"]
     lines += [f"| `{n}` | {k} | {u} | {m} |" for n, k, u, m in FRAME_COLUMNS]
     return "\n".join(lines)

@@ -86,7 +86,7 @@ def test_dt_is_the_times_txt_difference_and_ego_speed_from_the_poses(seq) -> Non
     expected = rows["frame"].map(lambda k: round(times[k] - times[k - 1], 9))
     np.testing.assert_array_equal(rows["dt"], expected)
     assert sorted(rows["frame"].unique()) == [1, 2, 3]
-    assert rows[EGO_SPEED].between(12.5, 14.0).all()  # README: 12.6–13.7 m/s
+    assert rows[EGO_SPEED].between(12.5, 14.0).all()  # the data README: 12.6–13.7 m/s
     whole = composed(["dataset=kitti_odometry"])
     assert frame_range_from_config(whole).last == 40  # last: null = the last frame on disk
     assert run_id(whole) != run_id(cfg)

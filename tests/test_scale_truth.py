@@ -164,7 +164,7 @@ def test_sift_camera_ttc_matches_the_truth(generated):
     """Noise off, SIFT/SIFT: the camera's distance ratio within MiD 6.6 (the ratio precision
     that is 2 % of the TTC at 3 s) on >= 95 % of the pairs of every target, and the TTC within
     2 % on every 3-s pair. (At 12 and 24 s, 2 % of the TTC needs the scale change to 1e-4 or
-    better, which SIFT keypoints do not reach: see README.)"""
+    better, which SIFT keypoints do not reach: see docs/scale-truth.md.)"""
     _, lead = generated
     cam = lead[lead["estimator"] == "median"]
     mid = 1e4 * np.abs(np.log(cam["camera_ratio"]) - np.log(cam["ratio_true"]))
