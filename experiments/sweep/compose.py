@@ -47,6 +47,7 @@ from experiments.identity import SETTING_KEYS, finish_setting, setting_config, s
 from experiments.sweep.containers import (
     ANY_KEY,
     comparable,
+    differing_paths,
     overlap,
     override_dirname,
     references,
@@ -61,7 +62,9 @@ BATCH_PREFIX = "batch="
 @dataclass(frozen=True)
 class Part:
     """What one local override changes: its config key, that key's node and group choice in
-    the variant's composition, and the variant's composition itself."""
+    the variant's composition, the variant's composition itself, and the nodes of the keys
+    elsewhere it also sets (a ``@package _global_`` option: ``dataset=kitti_odometry`` sets
+    its own lidar crop and camera pair distance)."""
 
     position: int
     item: str
@@ -69,6 +72,12 @@ class Part:
     node: Any
     choice: str | None
     config: DictConfig | None  # None: the variant is an earlier plan's (another template)
+    extras: tuple[tuple[str, Any], ...] = ()  # (dotted key, node) it also sets elsewhere
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """Every dotted key this part sets."""
+        return (self.key, *(k for k, _ in self.extras))
 
 
 class Composer:
@@ -100,6 +109,7 @@ class Composer:
         self._refs: dict[str, set[str]] = {}
         self._closures: dict[str, set[str]] = {}
         self._positions: dict[str, tuple[tuple[int, ...], Any]] = {}
+        self._touched: dict[int, set[str]] = {}  # position → top-level keys of its extras
         if template is not None:
             self._set_template(list(template))
 
@@ -199,11 +209,20 @@ class Composer:
         cfg = self.hydra(variant)
         key = override.key_or_group.replace("/", ".")
         container = OmegaConf.to_container(cfg, resolve=False)
-        if comparable(container, [key]) != comparable(self.base_container, [key]):
+        mine, base = comparable(container, [key]), comparable(self.base_container, [key])
+        if mine["hydra"] != base["hydra"]:
+            return None
+        paths = differing_paths({**mine, "hydra": {}}, {**base, "hydra": {}})
+        if paths is None or any(overlap(key, path) for path in paths):
             return None
         self._add_references(container)
         choice = cfg.hydra.runtime.choices.get(key)
-        return Part(position, item, key, OmegaConf.select(cfg, key), choice, cfg)
+        extras = tuple((path, OmegaConf.select(cfg, path)) for path in paths)
+        if extras:  # it changes entries beyond its key: what reaches them changes
+            tops = self._touched.setdefault(position, set())
+            tops.update(path.split(".")[0] for path in paths)
+            self._positions.clear()
+        return Part(position, item, key, OmegaConf.select(cfg, key), choice, cfg, extras)
 
     def parts(self, overrides: Sequence[str]) -> list[Part] | None:
         """The parts of the overrides that differ from the template; None when the job
@@ -223,6 +242,13 @@ class Composer:
                 parts.append(part)
                 differing.add(position)
         if any(i in differing and j in differing for i, j in self._overlaps):
+            return None
+        if any(p.extras for p in parts) and any(
+            overlap(a, b)
+            for p, q in itertools.combinations(parts, 2)
+            for a in p.keys
+            for b in q.keys
+        ):
             return None
         return parts
 
@@ -295,6 +321,7 @@ class Composer:
             positions = tuple(
                 i for i, k in enumerate(self.keys)
                 if ANY_KEY in reach or k.replace("/", ".").split(".")[0] in reach
+                or reach & self._touched.get(i, set())
             )  # fmt: skip
             values = operator.itemgetter(*positions) if positions else (lambda _: ())
             self._positions[key] = (positions, values)
@@ -324,6 +351,8 @@ def _swap(cfg: DictConfig, parts: Sequence[Part]) -> None:
     for part in parts:
         with open_dict(cfg):
             OmegaConf.update(cfg, part.key, copy.deepcopy(part.node), merge=False)
+            for key, node in part.extras:
+                OmegaConf.update(cfg, key, copy.deepcopy(node), merge=False)
         if part.choice is not None:
             with open_dict(cfg.hydra):
                 cfg.hydra.runtime.choices[part.key] = part.choice

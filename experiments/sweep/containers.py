@@ -45,6 +45,23 @@ def comparable(container: dict[str, Any], keys: Sequence[str]) -> dict[str, Any]
     return out
 
 
+def differing_paths(a: Any, b: Any, prefix: str = "") -> list[str] | None:
+    """The dotted paths where two plain containers differ, as deep as both are dicts there
+    (``{"x": {"y": 1, "z": 2}}`` and ``{"x": {"y": 1, "z": 3}}`` → ``["x.z"]``); None when a
+    key is in one only (a part cannot be swapped in by setting values)."""
+    if not (isinstance(a, dict) and isinstance(b, dict)):
+        return [] if a == b else [prefix.rstrip(".")]
+    if a.keys() != b.keys():
+        return None
+    found: list[str] = []
+    for key in a:
+        below = differing_paths(a[key], b[key], f"{prefix}{key}.")
+        if below is None:
+            return None
+        found += below
+    return found
+
+
 def references(value: Any, depth: int = 0) -> set[str]:
     """The top-level keys that the interpolations inside ``value`` (an unresolved top-level
     entry, or a part of one ``depth`` levels down) refer to; :data:`ANY_KEY` for a relative
