@@ -22,7 +22,7 @@ URL_ENV = "TTC_DOWNLOAD_URL"
 def explicit_root(argv: list[str]) -> bool:
     """Whether the command line or the environment names the data root: then a missing one
     is the user's to fill (the run says how), not downloaded into."""
-    return bool(os.environ.get(paths.LOCATIONS["data"][0])) or any(
+    return bool(os.environ.get(paths.LOCATIONS["data"])) or any(
         a.startswith("dataset.root=") for a in argv
     )
 

@@ -33,6 +33,7 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig
 
+from experiments import paths
 from experiments.config import (
     prepared_frame_range,
     register_configs,
@@ -181,7 +182,7 @@ def write_pictures(cfg: DictConfig) -> list[Path]:
     return [save_png(image, out_dir / name) for name, image in pictures.items()]
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@hydra.main(version_base="1.3", config_path=str(paths.CONF_DIR), config_name="config")
 def main(cfg: DictConfig) -> None:
     check_data(cfg)
     try:
