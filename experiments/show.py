@@ -39,6 +39,7 @@ from experiments.config import (
     register_configs,
     settings_from_config,
 )
+from experiments.first_run import ensure_data
 from experiments.report.encode import save_png
 from experiments.run import check_data
 from ttc import draw
@@ -203,5 +204,6 @@ def with_default_overrides(argv: list[str]) -> list[str]:
 
 
 if __name__ == "__main__":
+    sys.argv[1:] = ensure_data(sys.argv[1:])  # frames and weights on first run
     sys.argv = with_default_overrides(sys.argv)
     main()
