@@ -69,7 +69,10 @@ def main(argv: list[str] | None = None) -> None:
         print(f"usage: ttc-bench {name}\n\n{sub.summary} (takes no arguments).")
         sys.exit(0 if rest[0] in ("-h", "--help") else 2)
     sys.argv = [f"ttc-bench {name}", *sub.prefix, *rest]
-    runpy.run_module(sub.module, run_name="__main__", alter_sys=True)
+    try:
+        runpy.run_module(sub.module, run_name="__main__", alter_sys=True)
+    except BrokenPipeError:  # `ttc-bench schema | head`: the reader left, nothing is wrong
+        sys.stderr.close()
 
 
 if __name__ == "__main__":
