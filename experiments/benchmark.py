@@ -58,7 +58,7 @@ import pandas as pd
 
 from experiments import store
 from experiments.floor import compute_floor, hydra_compose_seconds, steps_floor_ms
-from experiments.paths import PROJECT_ROOT, default_data_root
+from experiments.paths import base_dir, default_data_root
 from experiments.provenance import code_version, machine, package_versions
 from ttc.features.descriptors import RUBRIC_DESCRIPTORS
 from ttc.features.keypoints import RUBRIC_DETECTORS
@@ -112,7 +112,7 @@ def timed_sweep(
     start = time.perf_counter()
     proc = subprocess.Popen(
         [sys.executable, "-m", "experiments.run", *args],
-        cwd=PROJECT_ROOT,
+        cwd=base_dir(),
         env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -143,7 +143,7 @@ def timed_report(sweep_dir: Path, out: Path, cache: Path) -> float:
     proc = subprocess.run(
         [sys.executable, "-m", "experiments.report", str(sweep_dir), "--out", str(out),
          "--cache-dir", str(cache)],
-        cwd=PROJECT_ROOT, capture_output=True, text=True,
+        cwd=base_dir(), capture_output=True, text=True,
     )  # fmt: skip
     if proc.returncode != 0:
         raise RuntimeError(f"report of {sweep_dir} failed:\n{proc.stderr[-4000:]}")
@@ -334,7 +334,7 @@ def main(argv: list[str] | None = None) -> None:
     parts = tuple(args.parts.split(",")) if args.parts else default_parts
     if unknown := set(parts) - set(PARTS):
         parser.error(f"unknown parts {sorted(unknown)}; known: {PARTS}")
-    out = args.out or PROJECT_ROOT / "results" / "benchmark" / (
+    out = args.out or base_dir() / "results" / "benchmark" / (
         "sweep_reduced.json" if args.reduced else "sweep_fp6_grid.json"
     )
 

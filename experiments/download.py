@@ -34,14 +34,14 @@ from experiments.fetch import (  # noqa: F401 (part of this command's interface)
     is_complete,
     sha256_of,
 )
-from experiments.paths import PROJECT_ROOT, default_data_root
+from experiments.paths import DOWNLOAD_DIR, default_data_root
 from ttc.atomic import write_bytes_atomic
 
 DEFAULT_BASE_URL = (
     "https://raw.githubusercontent.com/udacity/SFND_3D_Object_Tracking/master/"
     "images/KITTI/2011_09_26/"
 )
-DEFAULT_MANIFEST = PROJECT_ROOT / "conf" / "download" / "kitti_2011_09_26.yaml"
+DEFAULT_MANIFEST = DOWNLOAD_DIR / "kitti_2011_09_26.yaml"
 DEFAULT_TARGET = "kitti/2011_09_26"
 FRAME_DIRS = ("image_02/data", "velodyne_points/data")
 CALIB_FILES = ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt")

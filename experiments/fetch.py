@@ -6,6 +6,7 @@ and what to check; a file that differs from what was expected is a :class:`Misma
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import http.client
 import os
@@ -33,6 +34,14 @@ class TransferError(DownloadError):
 
 class MismatchError(DownloadError):
     """The server's file differs from the manifest (size or sha256): not retried."""
+
+
+class DiskFullError(DownloadError):
+    """The disk (or quota) filled up while writing: not retried (the ``.part`` is kept)."""
+
+
+#: ``OSError.errno`` values of a full disk or quota.
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
 @dataclass(frozen=True)
@@ -154,6 +163,8 @@ def _fetch(url: str, part: Path, entry: FileEntry, timeout: float, meter: Meter)
     except urllib.error.HTTPError as exc:
         raise _http_error(url, part, offset, exc) from exc
     except (urllib.error.URLError, http.client.HTTPException, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno in DISK_FULL:
+            raise DiskFullError(f"no space left writing {part}: {exc.strerror}") from exc
         raise TransferError(_network_hint(url, exc)) from exc
     if declared is not None and copied < declared:
         raise TransferError(

