@@ -11,6 +11,7 @@ keypoints     image file, detector params                                  (N, 7
 descriptors   keypoints key, descriptor params                             kept kps, desc
 matches       both descriptors keys, matcher params                        k=2 candidates
 matches (klt) previous keypoints key, current image file, KLT params      tracks
+(dis, farneback) the same with the dense-flow params                        tracks
 ============  ==========================================================  ==============
 
 A file is named by its identity (resolved path, size, mtime). NN and kNN selection share the
@@ -31,6 +32,7 @@ import cv2
 import numpy as np
 
 from ttc.engine.cache import Lookup, RecentArrays, StageCache, Task, cache_key
+from ttc.features.dense_flow import DENSE_FLOW_MATCHERS, flow_keypoints
 from ttc.features.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_binary
 from ttc.features.keypoints import detect_keypoints
 from ttc.features.klt import track_keypoints
@@ -211,16 +213,15 @@ class FrameStages:
         return self._task("matches", (prev, curr), parts, compute)
 
     def tracks(self, prev: int, curr: int) -> Task:
-        """KLT: the previous frame's keypoints tracked into the current frame (the matches
-        stage of ``matcher=klt``)."""
+        """KLT or dense flow: the previous frame's keypoints followed into the current frame
+        (the matches stage of ``matcher=klt``, ``dis`` or ``farneback``)."""
         klt = self.settings.matcher
         upstream = self.keypoints(prev)
+        follow = flow_keypoints if klt.name in DENSE_FLOW_MATCHERS else track_keypoints
 
         def compute() -> dict:
             keypoints = self.cache.get(upstream).arrays["keypoints"]
-            return tracks_to_arrays(
-                track_keypoints(self._gray(prev), self._gray(curr), keypoints, klt)
-            )
+            return tracks_to_arrays(follow(self._gray(prev), self._gray(curr), keypoints, klt))
 
         parts = lambda: (upstream.key, self._image_id(curr), _params(klt))  # noqa: E731
         return self._task("matches", (prev, curr), parts, compute)

@@ -25,7 +25,8 @@ process and worker. BF is exact and deterministic.
 
 Beyond descriptor matching: ``matcher=klt`` tracks the previous frame's keypoints into the
 current frame (:mod:`ttc.features.klt`, no descriptor; :func:`tracks_to_matches` gives the same
-index pairs) and ``matcher=custom`` calls your own k = 2 candidate function
+index pairs), ``matcher=dis`` / ``farneback`` do the same with a dense flow field
+(:mod:`ttc.features.dense_flow`) and ``matcher=custom`` calls your own k = 2 candidate function
 (:mod:`ttc.plugins`). :data:`MATCHER_PARAMS` maps every matcher name to its parameter class.
 """
 
@@ -39,6 +40,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ttc.features.dense_flow import DENSE_FLOW_MATCHERS, DenseFlowParams
 from ttc.features.klt import KltParams, Tracks
 from ttc.plugins import USER, CustomMatcherParams, match_custom
 
@@ -48,7 +50,7 @@ FLANN_INDEX_LSH = 6
 #: The descriptor matchers (the rubric's).
 MATCHERS = ("bf", "flann")
 #: Matchers that track keypoints instead of matching descriptors.
-TRACKERS = ("klt",)
+TRACKERS = ("klt", *DENSE_FLOW_MATCHERS)
 SELECTORS = ("nn", "knn")
 
 _TRAIN_AND_DISTANCE = attrgetter("trainIdx", "distance")
@@ -133,6 +135,8 @@ MATCHER_PARAMS: dict[str, type] = {
     "bf": MatcherParams,
     "flann": MatcherParams,
     "klt": KltParams,
+    "dis": DenseFlowParams,
+    "farneback": DenseFlowParams,
     USER: CustomMatcherParams,
 }
 
