@@ -41,7 +41,14 @@ import cv2
 import numpy as np
 
 from ttc.features.dense_flow import DENSE_FLOW_MATCHERS, DenseFlowParams
+from ttc.features.descriptors import check_pair
 from ttc.features.klt import KltParams, Tracks
+from ttc.features.learned_params import (
+    LEARNED_MATCHER_PARAMS,
+    LearnedUnavailableError,
+    check_learned,
+    learned_missing,
+)
 from ttc.plugins import USER, CustomMatcherParams, match_custom
 
 FLANN_SEED = 0
@@ -137,8 +144,24 @@ MATCHER_PARAMS: dict[str, type] = {
     "klt": KltParams,
     "dis": DenseFlowParams,
     "farneback": DenseFlowParams,
+    **LEARNED_MATCHER_PARAMS,
     USER: CustomMatcherParams,
 }
+
+
+def check_features(detector: str, descriptor: str, matcher: str, variant: str = "n16") -> None:
+    """Refuse, before any work, a detector × descriptor × matcher combination that cannot run
+    (:class:`~ttc.features.descriptors.InvalidCombinationError` or
+    :class:`~ttc.features.learned_params.LearnedUnavailableError`, both ValueErrors): an
+    invalid pair, a learned matcher without weights for the descriptor, a missing package or
+    weights file (``variant``: ALIKED's). A tracking matcher uses no descriptor."""
+    if matcher in TRACKERS:
+        missing = learned_missing(detector, variant)
+        if missing is not None:
+            raise LearnedUnavailableError(missing)
+        return
+    check_pair(detector, descriptor)
+    check_learned(detector, descriptor, matcher, variant)
 
 
 def uses_descriptors(matcher: Any) -> bool:
@@ -250,7 +273,7 @@ def select_matches(idx: np.ndarray, dist: np.ndarray, selector: SelectorParams) 
     if len(idx) == 0:
         return Matches.empty()
     has_first = idx[:, 0] >= 0
-    if selector.name == "nn":
+    if selector.name in ("nn", NO_SELECTOR.name):  # none: a learned matcher chose already
         keep = has_first
     else:
         d0, d1 = dist[:, 0].astype(np.float64), dist[:, 1].astype(np.float64)
