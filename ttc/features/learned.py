@@ -136,6 +136,11 @@ def extract(gray: np.ndarray, params: LearnedDetectorParams) -> tuple[np.ndarray
     return _RECENT[key]
 
 
+def forget_recent() -> None:
+    """Drop the kept extraction results (timings of a cold extraction)."""
+    _RECENT.clear()
+
+
 def detect_learned(gray: np.ndarray, params: LearnedDetectorParams) -> np.ndarray:
     """The keypoints (N, 7) of :func:`extract`."""
     return extract(gray, params)[0]
