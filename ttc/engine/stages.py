@@ -195,8 +195,8 @@ class FrameStages:
             if self.tracking:  # KLT: every detected keypoint, no descriptor
                 return {"keypoints": keypoints, "descriptors": np.empty((len(keypoints), 0))}
             if desc.name == det.name and learned_key(det):  # one network run: both at once
-                kept, descriptors = extract(self._gray(index), det)
-                return {"keypoints": kept, "descriptors": descriptors}
+                descriptors = extract(self._gray(index), det)[1]  # rows ↔ keypoints' rows
+                return {"keypoints": keypoints, "descriptors": descriptors}
             kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
             return {"keypoints": kept, "descriptors": descriptors}
 

@@ -57,7 +57,9 @@ class LearnedDetectorParams:
     ``detection_threshold``: least score of a keypoint (the network's own scale);
     ``resize``: longest image side (pixels) fed to the network, 0: the image as it is
     (keypoints are returned in the image's pixels either way); ``variant``: ALIKED's model
-    (n16, n16rot, n32, t16; unused otherwise); ``device``: cpu, cuda or auto."""
+    (n16, n16rot, n32, t16; unused otherwise); ``device``: cpu, cuda or auto; ``subpixel``:
+    ``cornerSubPix`` refinement of the keypoints (as for every detector; the descriptors stay
+    the network's)."""
 
     name: str = "xfeat"
     max_keypoints: int = 4096
@@ -65,6 +67,7 @@ class LearnedDetectorParams:
     resize: int = 0
     variant: str = "n16"
     device: str = "cpu"
+    subpixel: bool = False
 
     def __post_init__(self) -> None:
         if self.name not in PACKAGES:
