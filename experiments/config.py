@@ -36,6 +36,7 @@ from experiments.identity import (  # noqa: F401 (also imported from here)
 )
 from ttc.features.descriptors import DESCRIPTORS, NO_DESCRIPTOR
 from ttc.features.keypoints import DETECTORS
+from ttc.features.learned_params import LEARNED_MATCHERS
 from ttc.features.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
 from ttc.io.calibration import PROJECTIONS
 from ttc.io.frames import recording_frames
@@ -187,7 +188,9 @@ def _descriptor(descriptor: dict[str, Any], matcher: dict[str, Any]) -> Any:
 
 def _selector(selector: dict[str, Any], matcher: dict[str, Any]) -> Any:
     """The selector's parameters (none for a tracking matcher)."""
-    return NO_SELECTOR if _tracking(matcher) else _params(selector, SelectorParams)
+    if _tracking(matcher) or matcher["name"] in LEARNED_MATCHERS:  # LightGlue selects itself
+        return NO_SELECTOR
+    return _params(selector, SelectorParams)
 
 
 def _single(group: str) -> tuple[tuple[str, ...], Any]:

@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from experiments import datasets, paths
 from ttc import settings
 from ttc.features.descriptors import NO_DESCRIPTOR
+from ttc.features.learned_params import LEARNED_MATCHERS
 from ttc.features.matching import NO_SELECTOR, TRACKERS
 from ttc.settings import AXES
 
@@ -41,6 +42,8 @@ def finish_setting(entries: dict[str, Any]) -> dict[str, Any]:
     setting = dict(entries)
     if setting["matcher"]["name"] in TRACKERS:
         setting["descriptor"] = {"name": NO_DESCRIPTOR.name}
+        setting["selector"] = {"name": NO_SELECTOR.name}
+    if setting["matcher"]["name"] in LEARNED_MATCHERS:  # LightGlue selects its own matches
         setting["selector"] = {"name": NO_SELECTOR.name}
     return setting
 

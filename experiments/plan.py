@@ -33,8 +33,7 @@ from experiments.finished import plan_line
 from experiments.identity import setting_hash
 from experiments.records import now, peak_rss_mb, record_head
 from experiments.sweep.compose import Composer
-from ttc.features.descriptors import check_pair
-from ttc.features.matching import TRACKERS
+from ttc.features.matching import check_features
 from ttc.settings import axes_with_role
 
 PLAN_DIR = ".plan"
@@ -169,19 +168,19 @@ def _job(batch: list[dict[str, Any]], sweep_dir: Path, plan: Plan) -> list[str]:
 def _drop_invalid(
     todo: list[dict[str, Any]], sweep_dir: Path, config: DictConfig, plan: Plan
 ) -> list[dict[str, Any]]:
-    """``todo`` without the settings of invalid detector × descriptor pairs, whose
-    ``skipped`` records this writes (each pair checked once)."""
-    verdicts: dict[tuple[str, str], str | None] = {}
+    """``todo`` without the settings of invalid detector × descriptor × matcher combinations
+    (:func:`ttc.features.matching.check_features`), whose ``skipped`` records this writes
+    (each combination checked once)."""
+    verdicts: dict[tuple[str, ...], str | None] = {}
     keep, skipped = [], []
     cache_enabled, peak = bool(config.cache.enabled), peak_rss_mb()
     for member in todo:
-        pair = (member["setting"]["detector"]["name"], member["setting"]["descriptor"]["name"])
-        if member["setting"]["matcher"]["name"] in TRACKERS:  # KLT: no descriptor, no pair
-            keep.append(member)
-            continue
+        s = member["setting"]
+        pair = (s["detector"]["name"], s["descriptor"]["name"], s["matcher"]["name"],
+                s["detector"].get("variant", "n16"))  # fmt: skip
         if pair not in verdicts:
             try:
-                check_pair(*pair)
+                check_features(*pair)
                 verdicts[pair] = None
             except ValueError as exc:  # InvalidCombinationError
                 verdicts[pair] = str(exc)

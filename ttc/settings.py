@@ -88,7 +88,7 @@ AXIS_TABLE: tuple[Axis, ...] = (
         "step",
         CameraTTCParams,
         "FP.4 estimator",
-        neutral=(("min_box_fraction", 0.0),),
+        neutral=(("min_box_fraction", 0.0), ("fit_method", "ransac"), ("fit_threshold", 1.0)),
     ),
     Axis(
         "fusion",

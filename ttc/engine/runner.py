@@ -36,8 +36,7 @@ import pandas as pd
 from ttc.engine.cache import StageCache
 from ttc.engine.pair_steps import PairSteps
 from ttc.engine.stages import stream
-from ttc.features.descriptors import check_pair
-from ttc.features.matching import uses_descriptors
+from ttc.features.matching import check_features
 from ttc.io.calibration import Calibration, load_calibration
 from ttc.io.frames import (
     FrameDataError,
@@ -85,10 +84,12 @@ def member_keys(settings: Settings) -> dict[str, str]:
 
 
 def check_setting(settings: Settings) -> None:
-    """Raise :class:`ttc.features.descriptors.InvalidCombinationError` for an invalid (or unavailable)
-    detector × descriptor pair; a tracking matcher (KLT) uses no descriptor, so never."""
-    if uses_descriptors(settings.matcher):
-        check_pair(settings.detector.name, settings.descriptor.name)
+    """Raise a ValueError (:func:`ttc.features.matching.check_features`) for an invalid or
+    unavailable detector × descriptor × matcher combination; a tracking matcher (KLT, dense
+    flow) uses no descriptor."""
+    s = settings
+    variant = getattr(s.detector, "variant", "n16")
+    check_features(s.detector.name, s.descriptor.name, s.matcher.name, variant)
 
 
 def check_range(

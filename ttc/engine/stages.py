@@ -11,6 +11,7 @@ keypoints     image file, detector params                                  (N, 7
 descriptors   keypoints key, descriptor params                             kept kps, desc
 matches       both descriptors keys, matcher params                        k=2 candidates
 matches (klt) previous keypoints key, current image file, KLT params      tracks
+(dis, farneback) the same with the dense-flow params                        tracks
 ============  ==========================================================  ==============
 
 A file is named by its identity (resolved path, size, mtime). NN and kNN selection share the
@@ -31,9 +32,12 @@ import cv2
 import numpy as np
 
 from ttc.engine.cache import Lookup, RecentArrays, StageCache, Task, cache_key
+from ttc.features.dense_flow import DENSE_FLOW_MATCHERS, flow_keypoints
 from ttc.features.descriptors import NO_DESCRIPTOR, describe_keypoints, descriptor_is_binary
 from ttc.features.keypoints import detect_keypoints
 from ttc.features.klt import track_keypoints
+from ttc.features.learned import extract, glue_candidates
+from ttc.features.learned_params import LEARNED_MATCHERS, learned_key
 from ttc.features.matching import knn_candidates, tracks_to_arrays, uses_descriptors
 from ttc.features.objects import detect_objects, model_identity
 from ttc.io import kitti_odometry
@@ -177,7 +181,9 @@ class FrameStages:
         def compute() -> dict:
             return {"keypoints": detect_keypoints(self._gray(index), params)}
 
-        parts = lambda: (self._image_id(index), stage_params(params, "detector"))  # noqa: E731
+        def parts() -> tuple:
+            return (self._image_id(index), stage_params(params, "detector"), *learned_key(params))
+
         return self._task("keypoints", (index,), parts, compute)
 
     def descriptors(self, index: int) -> Task:
@@ -188,6 +194,9 @@ class FrameStages:
             keypoints = self.cache.get(upstream).arrays["keypoints"]
             if self.tracking:  # KLT: every detected keypoint, no descriptor
                 return {"keypoints": keypoints, "descriptors": np.empty((len(keypoints), 0))}
+            if desc.name == det.name and learned_key(det):  # one network run: both at once
+                descriptors = extract(self._gray(index), det)[1]  # rows ↔ keypoints' rows
+                return {"keypoints": keypoints, "descriptors": descriptors}
             kept, descriptors = describe_keypoints(self._gray(index), keypoints, det.name, desc)
             return {"keypoints": kept, "descriptors": descriptors}
 
@@ -202,25 +211,33 @@ class FrameStages:
         up_prev, up_curr = self.descriptors(prev), self.descriptors(curr)
 
         def compute() -> dict:
-            d_prev = self.cache.get(up_prev).arrays["descriptors"]
-            d_curr = self.cache.get(up_curr).arrays["descriptors"]
-            idx, dist = knn_candidates(d_prev, d_curr, self.binary, s.matcher)
+            a, b = self.cache.get(up_prev).arrays, self.cache.get(up_curr).arrays
+            if s.matcher.name in LEARNED_MATCHERS:  # LightGlue: keypoints and descriptors
+                size = self._gray(curr).shape[::-1]
+                idx, dist = glue_candidates(a["keypoints"], a["descriptors"], b["keypoints"],
+                                            b["descriptors"], size, s.descriptor.name, s.matcher)  # fmt: skip
+            else:
+                idx, dist = knn_candidates(
+                    a["descriptors"], b["descriptors"], self.binary, s.matcher
+                )
             return {"idx": idx, "dist": dist}
 
-        parts = lambda: (up_prev.key, up_curr.key, stage_params(s.matcher, "matcher"))  # noqa: E731
+        def parts() -> tuple:
+            glue = learned_key(s.matcher, s.descriptor.name)
+            return (up_prev.key, up_curr.key, stage_params(s.matcher, "matcher"), *glue)
+
         return self._task("matches", (prev, curr), parts, compute)
 
     def tracks(self, prev: int, curr: int) -> Task:
-        """KLT: the previous frame's keypoints tracked into the current frame (the matches
-        stage of ``matcher=klt``)."""
+        """KLT or dense flow: the previous frame's keypoints followed into the current frame
+        (the matches stage of ``matcher=klt``, ``dis`` or ``farneback``)."""
         klt = self.settings.matcher
         upstream = self.keypoints(prev)
+        follow = flow_keypoints if klt.name in DENSE_FLOW_MATCHERS else track_keypoints
 
         def compute() -> dict:
             keypoints = self.cache.get(upstream).arrays["keypoints"]
-            return tracks_to_arrays(
-                track_keypoints(self._gray(prev), self._gray(curr), keypoints, klt)
-            )
+            return tracks_to_arrays(follow(self._gray(prev), self._gray(curr), keypoints, klt))
 
         parts = lambda: (upstream.key, self._image_id(curr), _params(klt))  # noqa: E731
         return self._task("matches", (prev, curr), parts, compute)

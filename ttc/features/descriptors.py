@@ -56,6 +56,7 @@ from ttc.features.keypoints import (
     require_name,
     require_positive,
 )
+from ttc.features.learned_params import LEARNED_DESCRIPTORS, LEARNED_REASON, learned_missing
 from ttc.plugins import USER, CustomDescriptorParams, describe_custom
 
 
@@ -185,12 +186,13 @@ DESCRIPTORS: dict[str, type] = {
     "akaze": AkazeDescriptorParams,
     "sift": SiftDescriptorParams,
     **EXTRA_DESCRIPTORS,
+    **LEARNED_DESCRIPTORS,
     USER: CustomDescriptorParams,
 }
 #: The descriptors beyond the rubric (OpenCV's other descriptors).
 EXTRA_DESCRIPTOR_NAMES: tuple[str, ...] = tuple(EXTRA_DESCRIPTORS)
 
-FLOAT_DESCRIPTORS = frozenset({"sift"}) | EXTRA_FLOAT_DESCRIPTORS
+FLOAT_DESCRIPTORS = frozenset({"sift"}) | EXTRA_FLOAT_DESCRIPTORS | frozenset(LEARNED_DESCRIPTORS)
 
 _AKAZE_REASON = (
     "the AKAZE descriptor needs AKAZE keypoints: it reads the scale-space level from class_id, "
@@ -224,6 +226,12 @@ INVALID_PAIRS: dict[tuple[str, str], str] = {
     **{(det, "akaze"): _AKAZE_REASON for det in DETECTORS if det != "akaze"},
     ("sift", "orb"): _SIFT_ORB_REASON,
     **EXTRA_INVALID_PAIRS,
+    **{
+        (det, desc): LEARNED_REASON
+        for det in DETECTORS
+        for desc in DESCRIPTORS
+        if {det, desc} & set(LEARNED_DESCRIPTORS) and det != desc
+    },  # fmt: skip
 }
 
 
@@ -241,6 +249,8 @@ class FeatureUnavailableError(InvalidCombinationError):
 
 def unavailable_reason(detector: str, descriptor: str) -> str | None:
     """Why the installed OpenCV cannot run the pair (None: it can)."""
+    if learned_missing(detector) or learned_missing(descriptor):
+        return learned_missing(detector) or learned_missing(descriptor)
     missing = [f"detector {detector!r}"] if not detector_available(detector) else []
     if not descriptor_available(descriptor):
         missing.append(f"descriptor {descriptor!r}")
@@ -280,9 +290,10 @@ def check_pair(detector: str, descriptor: str) -> None:
 
 def valid_pairs(rubric_only: bool = True) -> list[tuple[str, str]]:
     """Every valid (detector, descriptor) pair, in registry order: the rubric's only (default,
-    FP.6's grid) or every registered one (``rubric_only=False``)."""
-    dets = RUBRIC_DETECTORS if rubric_only else tuple(d for d in DETECTORS if d != USER)
-    descs = RUBRIC_DESCRIPTORS if rubric_only else tuple(d for d in DESCRIPTORS if d != USER)
+    FP.6's grid) or every registered OpenCV one (``rubric_only=False``)."""
+    other = {USER, *LEARNED_DESCRIPTORS}  # learned pairs: +experiment=learned, not the zoo
+    dets = RUBRIC_DETECTORS if rubric_only else tuple(d for d in DETECTORS if d not in other)
+    descs = RUBRIC_DESCRIPTORS if rubric_only else tuple(d for d in DESCRIPTORS if d not in other)
     return [(d, e) for d in dets for e in descs if (d, e) not in INVALID_PAIRS]
 
 

@@ -50,6 +50,8 @@ from ttc.features.base import (  # noqa: F401  (re-exported: the keypoint API li
     require_positive,
 )
 from ttc.features.detectors_extra import EXTRA_DETECT, EXTRA_DETECTORS
+from ttc.features.learned import detect_learned
+from ttc.features.learned_params import LEARNED_DETECTORS
 from ttc.plugins import USER, CustomDetectorParams, detect_custom
 
 
@@ -246,6 +248,7 @@ DETECTORS: dict[str, type] = {
     "akaze": AkazeParams,
     "sift": SiftParams,
     **EXTRA_DETECTORS,
+    **LEARNED_DETECTORS,
     USER: CustomDetectorParams,
 }
 #: The detectors beyond the rubric (OpenCV's other feature detectors).
@@ -344,6 +347,7 @@ _DETECT: dict[str, Callable[[np.ndarray, Any], np.ndarray]] = {
     "akaze": _detect_akaze,
     "sift": _detect_sift,
     **EXTRA_DETECT,
+    **dict.fromkeys(LEARNED_DETECTORS, detect_learned),
     USER: detect_custom,
 }
 

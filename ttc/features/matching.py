@@ -25,7 +25,8 @@ process and worker. BF is exact and deterministic.
 
 Beyond descriptor matching: ``matcher=klt`` tracks the previous frame's keypoints into the
 current frame (:mod:`ttc.features.klt`, no descriptor; :func:`tracks_to_matches` gives the same
-index pairs) and ``matcher=custom`` calls your own k = 2 candidate function
+index pairs), ``matcher=dis`` / ``farneback`` do the same with a dense flow field
+(:mod:`ttc.features.dense_flow`) and ``matcher=custom`` calls your own k = 2 candidate function
 (:mod:`ttc.plugins`). :data:`MATCHER_PARAMS` maps every matcher name to its parameter class.
 """
 
@@ -39,7 +40,15 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ttc.features.dense_flow import DENSE_FLOW_MATCHERS, DenseFlowParams
+from ttc.features.descriptors import check_pair
 from ttc.features.klt import KltParams, Tracks
+from ttc.features.learned_params import (
+    LEARNED_MATCHER_PARAMS,
+    LearnedUnavailableError,
+    check_learned,
+    learned_missing,
+)
 from ttc.plugins import USER, CustomMatcherParams, match_custom
 
 FLANN_SEED = 0
@@ -48,7 +57,7 @@ FLANN_INDEX_LSH = 6
 #: The descriptor matchers (the rubric's).
 MATCHERS = ("bf", "flann")
 #: Matchers that track keypoints instead of matching descriptors.
-TRACKERS = ("klt",)
+TRACKERS = ("klt", *DENSE_FLOW_MATCHERS)
 SELECTORS = ("nn", "knn")
 
 _TRAIN_AND_DISTANCE = attrgetter("trainIdx", "distance")
@@ -133,8 +142,26 @@ MATCHER_PARAMS: dict[str, type] = {
     "bf": MatcherParams,
     "flann": MatcherParams,
     "klt": KltParams,
+    "dis": DenseFlowParams,
+    "farneback": DenseFlowParams,
+    **LEARNED_MATCHER_PARAMS,
     USER: CustomMatcherParams,
 }
+
+
+def check_features(detector: str, descriptor: str, matcher: str, variant: str = "n16") -> None:
+    """Refuse, before any work, a detector × descriptor × matcher combination that cannot run
+    (:class:`~ttc.features.descriptors.InvalidCombinationError` or
+    :class:`~ttc.features.learned_params.LearnedUnavailableError`, both ValueErrors): an
+    invalid pair, a learned matcher without weights for the descriptor, a missing package or
+    weights file (``variant``: ALIKED's). A tracking matcher uses no descriptor."""
+    if matcher in TRACKERS:
+        missing = learned_missing(detector, variant)
+        if missing is not None:
+            raise LearnedUnavailableError(missing)
+        return
+    check_pair(detector, descriptor)
+    check_learned(detector, descriptor, matcher, variant)
 
 
 def uses_descriptors(matcher: Any) -> bool:
@@ -246,7 +273,7 @@ def select_matches(idx: np.ndarray, dist: np.ndarray, selector: SelectorParams) 
     if len(idx) == 0:
         return Matches.empty()
     has_first = idx[:, 0] >= 0
-    if selector.name == "nn":
+    if selector.name in ("nn", NO_SELECTOR.name):  # none: a learned matcher chose already
         keep = has_first
     else:
         d0, d1 = dist[:, 0].astype(np.float64), dist[:, 1].astype(np.float64)

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial.distance import pdist
 
 from ttc import reasons
+from ttc.steps.similarity_fit import check_fit, similarity_scale
 
 #: Least previous-frame distance (pixels) of a usable pair: coincident keypoints give no ratio.
 MIN_PREV_DIST = 1e-9
@@ -32,10 +33,13 @@ class CameraTTCParams:
     name: str = "median_ratio"
     min_dist: float = 100.0
     min_box_fraction: float = 0.0
+    fit_method: str = "ransac"  # similarity_fit only: ransac or lmeds
+    fit_threshold: float = 1.0  # similarity_fit only: RANSAC threshold, pixels
 
     def __post_init__(self) -> None:
-        if self.name not in CAMERA_ESTIMATORS:
-            known = ", ".join(CAMERA_ESTIMATORS)
+        check_fit(self.fit_method, self.fit_threshold)
+        if self.name not in CAMERA_ESTIMATORS and self.name not in POINT_ESTIMATORS:
+            known = ", ".join([*CAMERA_ESTIMATORS, *POINT_ESTIMATORS])
             raise ValueError(f"unknown camera TTC estimator {self.name!r}; known: {known}")
         if not self.min_dist >= 0:
             raise ValueError(f"min_dist must be >= 0 pixels, got {self.min_dist}")
@@ -63,6 +67,13 @@ def mean_ratio(ratios: np.ndarray) -> float:
 CAMERA_ESTIMATORS: dict[str, Callable[[np.ndarray], float]] = {
     "median_ratio": median_ratio,
     "mean_ratio": mean_ratio,
+}
+#: FP.4 estimators of the scale from the correspondences themselves (not from pair ratios):
+#: (prev_xy, curr_xy, params) → (ratio, correspondences used); see :mod:`ttc.steps.similarity_fit`.
+POINT_ESTIMATORS: dict[str, Callable[..., tuple[float, int]]] = {
+    "similarity_fit": lambda p, c, params: similarity_scale(
+        p, c, params.fit_method, params.fit_threshold
+    ),
 }
 
 
@@ -116,13 +127,18 @@ def camera_ttc(
     nan = float("nan")
     if len(curr_xy) == 0:
         return CameraTTCResult(nan, nan, 0, reasons.NO_MATCHES_IN_BOX)
-    ratios = distance_ratios(prev_xy, curr_xy, params.threshold(box_width))
-    if len(ratios) == 0:
+    if params.name in POINT_ESTIMATORS:
+        r, n_used = POINT_ESTIMATORS[params.name](prev_xy, curr_xy, params)
+    else:
+        ratios = distance_ratios(prev_xy, curr_xy, params.threshold(box_width))
+        r, n_used = (
+            (CAMERA_ESTIMATORS[params.name](ratios), len(ratios)) if len(ratios) else (nan, 0)
+        )
+    if n_used == 0:
         return CameraTTCResult(nan, nan, 0, reasons.TOO_FEW_PAIRS)
-    r = CAMERA_ESTIMATORS[params.name](ratios)
     if r == 1.0:
-        return CameraTTCResult(float("inf"), r, len(ratios), reasons.RATIO_ONE)
+        return CameraTTCResult(float("inf"), r, n_used, reasons.RATIO_ONE)
     ttc = ttc_from_ratio(r, dt)
     if ttc < 0:
-        return CameraTTCResult(float("inf"), r, len(ratios), reasons.RECEDING)
-    return CameraTTCResult(ttc, r, len(ratios), reasons.OK)
+        return CameraTTCResult(float("inf"), r, n_used, reasons.RECEDING)
+    return CameraTTCResult(ttc, r, n_used, reasons.OK)
