@@ -51,8 +51,12 @@ def _row(stage: str, device: str, times: list[float], **extra: Any) -> dict[str,
             "ms_min": float(min(times)), "repeat": len(times), **extra}  # fmt: skip
 
 
-def time_device(grays: list[np.ndarray], device: str, repeat: int) -> list[dict[str, Any]]:
-    """The rows of every learned stage on ``device`` (cpu or cuda) for frames ``grays``."""
+def time_device(
+    grays: list[np.ndarray], device: str, repeat: int, cases: tuple[str, ...], match: bool = True
+) -> list[dict[str, Any]]:
+    """The rows of the learned stages of ``cases`` (detector names) on ``device`` (cpu or
+    cuda) for frames ``grays``; without ``match``, extraction only (for a copy of the weights
+    packages that leaves the matchers' files out)."""
     import torch
 
     def sync() -> None:
@@ -62,6 +66,8 @@ def time_device(grays: list[np.ndarray], device: str, repeat: int) -> list[dict[
     rows = []
     size = grays[0].shape[::-1]
     for name, glue in CASES:
+        if name not in cases:
+            continue
         params = LEARNED_DETECTORS[name](device=device)
 
         def cold(g: np.ndarray = grays[0], p: Any = params) -> Any:
@@ -70,6 +76,8 @@ def time_device(grays: list[np.ndarray], device: str, repeat: int) -> list[dict[
 
         times, (kps, _) = timed(cold, repeat, sync)
         rows.append(_row(f"{name} keypoints+descriptors per frame", device, times, n=len(kps)))
+        if not match:
+            continue
         feats = [learned.extract(g, params) for g in grays]
         matcher = GlueParams(glue, device=device)
 
@@ -92,6 +100,20 @@ def time_dense_flow(grays: list[np.ndarray], repeat: int) -> list[dict[str, Any]
     return rows
 
 
+def _devices() -> dict[str, Any]:
+    """The processor and, when there is one, the GPU and the torch build the times come from."""
+    import torch
+
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    cpuinfo = Path("/proc/cpuinfo")
+    names = [line.split(":", 1)[1].strip() for line in
+             (cpuinfo.read_text().splitlines() if cpuinfo.exists() else [])
+             if line.startswith("model name")]  # fmt: skip
+    cpu = names[0] if names else platform.processor() or platform.machine()
+    return {"cpu": cpu, "torch": torch.__version__,
+            "gpu": gpu}  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
@@ -99,6 +121,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data-root", type=Path, default=None,
                         help="data root (default: TTC_DATA_DIR or ../shared/data)")  # fmt: skip
     parser.add_argument("--frames", type=int, nargs=2, default=(10, 11))
+    parser.add_argument("--cases", nargs="+", default=[c[0] for c in CASES],
+                        choices=[c[0] for c in CASES], help="learned detectors timed")  # fmt: skip
+    parser.add_argument("--no-match", action="store_true", help="time extraction only")
+    parser.add_argument("--no-flow", action="store_true", help="leave out DIS and Farneback")
     parser.add_argument("--out", type=Path, default=Path("learned_timing.json"))
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
@@ -106,11 +132,11 @@ def main(argv: list[str] | None = None) -> None:
     images = root / "kitti" / "2011_09_26" / "image_02" / "data"
     grays = [cv2.cvtColor(read_image(images / f"{i:010d}.png"), cv2.COLOR_BGR2GRAY)
              for i in args.frames]  # fmt: skip
-    rows = time_dense_flow(grays, args.repeat)
+    rows = [] if args.no_flow else time_dense_flow(grays, args.repeat)
     for device in args.device:
-        rows += time_device(grays, device, args.repeat)
+        rows += time_device(grays, device, args.repeat, tuple(args.cases), not args.no_match)
     meta = {"machine": platform.node(), "python": platform.python_version(),
-            "frames": list(args.frames)}  # fmt: skip
+            "frames": list(args.frames), **_devices()}  # fmt: skip
     args.out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     for row in rows:
         print(f"{row['stage']:<45} {row['device']:<5} {row['ms_median']:9.1f} ms  n={row['n']}")
