@@ -5,7 +5,7 @@ arguments, Hydra overrides passed through untouched), so the two spellings never
 
     ttc-bench run detector=orb descriptor=brisk        # = python -m experiments.run ...
     ttc-bench sweep detector=fast,orb                  # = python -m experiments.run -m ...
-    ttc-bench report sweeps/fp6_grid_kitti_0_18 --out results/kitti_0_18
+    ttc-bench report sweeps/fp6_grid_kitti_0_18 --out reports/kitti_0_18
     ttc-bench run --help                               # each subcommand's own help
 """
 

@@ -161,7 +161,7 @@ def summarise_sweep(
             print(scores.head(n).to_string(index=False, float_format="%.3g"))
     name = sweep_dir.name
     print(f"\nreports ({report_contents(frames, runs)}):\n"
-          f"  python -m experiments.report {sweep_dir} --out results/{name}")  # fmt: skip
+          f"  python -m experiments.report {sweep_dir} --out reports/{name}")  # fmt: skip
     return tables[0][0]
 
 

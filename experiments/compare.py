@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from experiments.paths import shown
 from experiments.report.encode import markdown_table, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData, load_sweeps, make_context, reference_for
@@ -107,7 +108,7 @@ def compare_markdown(table: pd.DataFrame, a: SweepMetrics, b: SweepMetrics, sens
     shown = ["setting", *[c.format(s=sensor) for c in SHOWN]]
     lines = [
         provenance_markdown(both, f"Sweep comparison ({sensor} TTC): B vs A"),
-        f"A = `{a.data.dirs[0]}`, B = `{b.data.dirs[0]}`; {len(table)} settings in both "
+        f"A = `{shown(a.data.dirs[0])}`, B = `{shown(b.data.dirs[0])}`; {len(table)} settings in both "
         f"(A has {len(a.metrics)}, B has {len(b.metrics)} ok runs).",
         "",
         "Verdict of B against A beyond the 90 % paired-bootstrap intervals: the outlier rate "

@@ -106,3 +106,13 @@ def default_results_dir() -> Path:
     """``$TTC_RESULTS_DIR``, else ``./sweeps`` in the checkout, else ``./sweeps`` in the
     working directory."""
     return default("results")
+
+
+def shown(path: str | Path) -> str:
+    """``path`` as a report names it: relative to the working directory when it lies under it
+    (so a committed report does not carry the machine's folders), else absolute."""
+    p = Path(os.path.expanduser(str(path))).absolute()
+    try:
+        return p.relative_to(Path.cwd()).as_posix()
+    except ValueError:
+        return p.as_posix()

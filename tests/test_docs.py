@@ -51,3 +51,27 @@ def test_the_site_builds_strictly(tmp_path: Path) -> None:
     for name in DOCS:
         page = "index.html" if name == "index.md" else f"{Path(name).stem}/index.html"
         assert (tmp_path / page).is_file(), page
+
+
+def _main_command() -> list[list[str]]:
+    """The README's main command as its ``ttc-bench`` steps (argument lists)."""
+    line = next(x for x in README.splitlines() if "ttc-bench run +experiment=fp6_grid" in x)
+    steps = [s.split() for s in line.split("&&")]
+    return [s[1:] for s in steps if s[0].endswith("/ttc-bench")]
+
+
+def test_the_main_command_writes_only_where_nothing_is_tracked() -> None:
+    """Everything the main command writes (its sweeps, its report folder, the stage cache and
+    the downloaded frames) is ignored by git, so running it leaves ``git status`` clean; the
+    committed reports are under ``results/``, which it does not touch."""
+    steps = _main_command()
+    assert [s[0] for s in steps] == ["run", "run", "report"]
+    report = steps[-1]
+    out = report[report.index("--out") + 1]
+    written = [out, *[a for a in report[1:] if a.startswith("sweeps/")], "sweeps/x", "cache/x"]
+    written.append("data/kitti/x.png")
+    assert not out.startswith("results/")
+    for path in written:
+        ignored = subprocess.run(["git", "check-ignore", "-q", "--no-index", path],
+                                 cwd=PROJECT_ROOT).returncode == 0  # fmt: skip
+        assert ignored, f"the main command writes {path}, which git does not ignore"

@@ -3,9 +3,9 @@ and an HTML report.
 
 Usage::
 
-    python -m experiments.report sweeps/fp6_grid_kitti_0_18 --out results/kitti_0_18
+    python -m experiments.report sweeps/fp6_grid_kitti_0_18 --out reports/kitti_0_18
     python -m experiments.report sweeps/fp5_lidar_kitti_0_18 sweeps/fp6_grid_kitti_0_18 \\
-        --out results/kitti_0_18
+        --out reports/kitti_0_18
 
 Writes ``metrics.parquet`` beside each sweep (one row per run) and, under ``--out``:
 

@@ -10,6 +10,7 @@ from typing import Any
 
 import pandas as pd
 
+from experiments.paths import shown
 from experiments.provenance import code_version, machine, package_versions
 from experiments.report.load import SweepData
 from ttc.settings import AXES
@@ -93,7 +94,7 @@ def _provenance_lines(data: SweepData) -> list[str]:
         "| provenance | |",
         "|---|---|",
         f"| sweeps | {_sweeps_cell(data)} |",
-        f"| sweep folders | {', '.join(f'`{d}`' for d in data.dirs)} |",
+        f"| sweep folders | {', '.join(f'`{shown(d)}`' for d in data.dirs)} |",
         f"| code version (runs) | {code} |",
         f"| code version (report) | `{now['git_commit']}` dirty={now['git_dirty']} |",
         f"| sweep command-line | {overrides} |",
