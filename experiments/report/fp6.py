@@ -116,6 +116,10 @@ def fp6_report(
         return None
     write_csv(t[FP6_COLUMNS], out / "fp6_camera_ttc.csv")
     write_csv(ranking[RANKING_COLUMNS], out / "fp6_ranking.csv")
+    beyond = ev.against_best_classic(ranking)
+    (out / "fp6_beyond_classic.csv").unlink(missing_ok=True)
+    if not beyond.empty:
+        write_csv(beyond, out / "fp6_beyond_classic.csv")
     save_figure(plot_heatmap(ranking), out / "fp6_heatmap.png")
     save_figure(plot_top_bottom(t, ranking, reference), out / "fp6_ttc_series.png")
     save_figure(plot_pareto(ranking), out / "fp6_pareto.png")
@@ -128,7 +132,8 @@ def fp6_report(
             name = picture_stem(row["setting"], row["frame"]) + ".webp"
             image = camera_picture(row, data.runs, ctx)
             drawn.append((row, save_webp(image, out / "fp6_pictures" / name)))
-    write_text(fp6_markdown(data, t, ranking, drawn, out, against), out / "fp6_camera.md")
+    text = fp6_markdown(data, t, ranking, drawn, out, against, beyond)
+    write_text(text, out / "fp6_camera.md")
     return t, ranking
 
 
@@ -183,6 +188,27 @@ def _way_off_paragraph(t: pd.DataFrame) -> str:
     )
 
 
+def _beyond_classic_lines(beyond: pd.DataFrame | None) -> list[str]:
+    """The section on learned features, dense flow, tracking and the scale fit (none when the
+    sweeps hold no such setting)."""
+    if beyond is None or beyond.empty:
+        return []
+    return [
+        "## Learned features, dense flow, tracking and the scale fit against the best classic "
+        "setting",
+        "",
+        "Families and verdict: `ttc.evaluation.families` (`better` / `worse`: the 90 % "
+        "intervals of the median MiD do not overlap). `ms_per_frame` is the sweep's recorded "
+        "time per frame; settings sharing a cached stage charge it to the one that computed "
+        "it. All rows: `fp6_beyond_classic.csv`.",
+        "",
+        *ev.verdict_sentence(beyond),
+        "",
+        markdown_table(beyond),
+        "",
+    ]
+
+
 def fp6_markdown(
     data: SweepData,
     t: pd.DataFrame,
@@ -190,9 +216,11 @@ def fp6_markdown(
     pictures: list[tuple[pd.Series, Path]],
     out: Path,
     against: str = AGAINST_REFERENCE,
+    beyond: pd.DataFrame | None = None,
 ) -> str:
-    """The FP.6 markdown: ranking, best settings, way-off frames with reasons, pictures;
-    ``against``: what the TTCs are judged against, in words."""
+    """The FP.6 markdown: ranking, best settings, the non-classic settings against the best
+    classic one (``beyond``, :func:`ttc.evaluation.against_best_classic`; left out when empty),
+    way-off frames with reasons, pictures; ``against``: what the TTCs are judged against."""
     show = ["rank", "rank_lo", "rank_hi", "setting", "camera_invalid_rate", "camera_mid_median",
             *(f"camera_mid_median_{r}" for r in ev.REGIMES), "camera_outlier_rate",
             "camera_medae_rel", "way_off_frames", "ms_compute_per_frame"]  # fmt: skip
@@ -225,6 +253,7 @@ def fp6_markdown(
         "",
         "![pareto](fp6_pareto.png)",
         "",
+        *_beyond_classic_lines(beyond),
         f"## Frames where the camera TTC is way off ({len(way)} of {len(t)} setting x frame rows)",
         "",
         _way_off_paragraph(t),

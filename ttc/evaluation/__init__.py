@@ -20,6 +20,8 @@ submodules are the stages of judging:
   (Kendall's τ, the best of one on the others, the top everywhere);
 - :mod:`~ttc.evaluation.ttc_bins`: metrics per reference-TTC range (< 6, 6–12, 12–24,
   > 24 s) and the false alarms of a recording without a lead vehicle;
+- :mod:`~ttc.evaluation.families`: learned features, dense flow, tracking and the scale fit
+  against the best classic setting;
 - :mod:`~ttc.evaluation.truth`: judging a generated recording against its exact truth, per
   target TTC, and its ranking's agreement with a real sequence's;
 - :mod:`~ttc.evaluation.lead`: which box is the lead vehicle's (one rule for tables and
@@ -96,6 +98,7 @@ from ttc.evaluation.errors import (
     stage_time_columns,
     with_compute_times,
 )
+from ttc.evaluation.families import FAMILIES, against_best_classic, family_of, verdict_sentence
 from ttc.evaluation.lead import box_points, lead_box_of, lead_boxes, lead_clouds, lead_row
 from ttc.evaluation.lead_distance import (
     euclidean_clusters,
@@ -175,6 +178,10 @@ from ttc.evaluation.ttc_bins import (
 )
 
 __all__ = [
+    "FAMILIES",
+    "against_best_classic",
+    "family_of",
+    "verdict_sentence",
     "best_elsewhere",
     "recording_agreement",
     "top_everywhere",
