@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 
 from experiments import progress, store
 from experiments.finished import nothing_computed_line, summary_head
+from experiments.paths import shown
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
 SETTING_COLUMNS = list(SETTING_AXES)
@@ -161,7 +162,7 @@ def summarise_sweep(
             print(scores.head(n).to_string(index=False, float_format="%.3g"))
     name = sweep_dir.name
     print(f"\nreports ({report_contents(frames, runs)}):\n"
-          f"  python -m experiments.report {sweep_dir} --out reports/{name}")  # fmt: skip
+          f"  python -m experiments.report {shown(sweep_dir)} --out reports/{name}")  # fmt: skip
     return tables[0][0]
 
 

@@ -93,7 +93,7 @@ def verdict_sentence(table: pd.DataFrame) -> list[str]:
         )
         firsts = others.groupby("family", sort=False).head(1)
         per_family = "; ".join(
-            f"best {f['family']}: {f['setting']} rank {int(f['rank'])}, "
+            f"Best {f['family']}: {f['setting']} rank {int(f['rank'])}, "
             f"median MiD {f['camera_mid_median']:.2f}, {f['verdict']}"
             for _, f in firsts.iterrows()
         )
