@@ -105,10 +105,11 @@ def compare_markdown(table: pd.DataFrame, a: SweepMetrics, b: SweepMetrics, sens
         {**a.data.overrides, **b.data.overrides},
     )
     counts = table["verdict"].value_counts()
-    shown = ["setting", *[c.format(s=sensor) for c in SHOWN]]
+    columns = ["setting", *[c.format(s=sensor) for c in SHOWN]]
     lines = [
         provenance_markdown(both, f"Sweep comparison ({sensor} TTC): B vs A"),
-        f"A = `{shown(a.data.dirs[0])}`, B = `{shown(b.data.dirs[0])}`; {len(table)} settings in both "
+        f"A = `{shown(a.data.dirs[0])}`, B = `{shown(b.data.dirs[0])}`; "
+        f"{len(table)} settings in both "
         f"(A has {len(a.metrics)}, B has {len(b.metrics)} ok runs).",
         "",
         "Verdict of B against A beyond the 90 % paired-bootstrap intervals: the outlier rate "
@@ -116,7 +117,7 @@ def compare_markdown(table: pd.DataFrame, a: SweepMetrics, b: SweepMetrics, sens
         f"**{counts.get('better', 0)} better, {counts.get('worse', 0)} worse, "
         f"{counts.get('same', 0)} same.**",
         "",
-        markdown_table(table[shown]),
+        markdown_table(table[columns]),
         "",
     ]
     return "\n".join(lines)

@@ -175,7 +175,12 @@ def parser() -> argparse.ArgumentParser:
         "markdown + CSV + pictures, and an HTML report (out/html/index.html).",
     )
     p.add_argument("sweep_dirs", type=Path, nargs="+", help="sweep folders")
-    p.add_argument("--out", type=Path, required=True, help="report folder (reports/<name>; results/ holds the committed ones)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="report folder (reports/<name>; results/ holds the committed ones)",
+    )
     p.add_argument("--data-dir", type=Path, default=None,
                    help="data root (default: $TTC_DATA_DIR or the configured one)")  # fmt: skip
     p.add_argument("--cache-dir", type=Path, default=None,
