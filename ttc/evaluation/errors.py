@@ -28,8 +28,10 @@ Time: ``ms_per_frame`` is the sum of the lead row's stage times (:func:`stage_ti
 ms). Stages that came from the stage cache count their cache-load time, so it is the time
 this run took, which depends on what ran before it. ``ms_compute_per_frame`` replaces a
 cached stage's time by the median time of the same stage computed (not cached) on the same
-frame by any run of the table with the same stage inputs (:data:`CACHED_STAGE_INPUTS`);
-NaN when no run of the table computed it.
+frame by any run of the table with the same stage inputs (:data:`CACHED_STAGE_INPUTS`),
+else on any frame; a stage that no run of the table computed keeps its load time (the objects
+and lane points a sweep's warm-up fills while the sweep is planned: the same entries for
+every setting of the sweep, so they shift every setting's time alike and leave the order).
 """
 
 from __future__ import annotations
@@ -179,7 +181,8 @@ def mid_error(ratio: np.ndarray, ratio_ref: np.ndarray) -> np.ndarray:
 
 def _compute_times(lead: pd.DataFrame) -> pd.Series:
     """Per-row ``ms_per_frame`` with cached stages' times replaced by computed ones (ms): the
-    median computing time of the same stage inputs on the same frame, else on any frame."""
+    median computing time of the same stage inputs on the same frame, else on any frame, else
+    (no run of ``lead`` computed it) the load time."""
     if "ms_compute_per_frame" in lead:  # looked up beforehand (:func:`with_compute_times`)
         return lead["ms_compute_per_frame"]
     total = lead[stage_time_columns(lead)].sum(axis=1)
@@ -192,7 +195,7 @@ def _compute_times(lead: pd.DataFrame) -> pd.Series:
         same_frame = own.groupby([*stage, lead["frame"]]).transform("median")
         any_frame = own.groupby(stage).transform("median") if stage else own.median()
         computed = same_frame.fillna(any_frame)
-        total = total + (computed - lead[ms]).where(cached, 0.0)
+        total = total + (computed - lead[ms]).where(cached & computed.notna(), 0.0)
     return total
 
 
