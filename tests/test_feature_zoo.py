@@ -77,7 +77,9 @@ def keypoints(grays) -> Callable[[str], tuple[np.ndarray, np.ndarray]]:
 
 
 def test_zoo_registries_and_pair_table() -> None:
-    assert set(EXTRA_DETECTOR_NAMES) == {"kaze", "agast", "mser", "star", "msd", "harris_laplace"}
+    assert set(EXTRA_DETECTOR_NAMES) == {
+        "kaze", "agast", "mser", "star", "msd", "harris_laplace", "grid"
+    }  # fmt: skip
     assert set(EXTRA_DESCRIPTOR_NAMES) == {
         "kaze", "beblid", "teblid", "daisy", "latch", "lucid", "boostdesc", "vgg"
     }  # fmt: skip
@@ -85,7 +87,7 @@ def test_zoo_registries_and_pair_table() -> None:
     assert set(valid_pairs(rubric_only=False)) == every - set(INVALID_PAIRS)
     assert (
         len(every - set(INVALID_PAIRS)) == 182 - 12 - 12 - 1 - 1
-    )  # akaze, kaze, sift/orb, msd/sift
+    )  # akaze, kaze, sift/orb, msd/sift; the grid (for trackers) pairs with no descriptor
 
 
 @pytest.mark.parametrize(("detector", "descriptor"), [_param(*p) for p in NEW_PAIRS])

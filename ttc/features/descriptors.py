@@ -212,6 +212,10 @@ _MSD_SIFT_REASON = (
     "the SIFT descriptor reads MSD's octave (its scale index) as SIFT's packed octave and "
     "fails inside OpenCV (resize asserts inv_scale_x > 0)"
 )
+_GRID_REASON = (
+    "grid points are for the trackers (matcher klt, dis or farneback): most lie on the road, "
+    "the sky or a flat panel, where a descriptor does not tell one point from its neighbours"
+)
 #: Invalid pairs with the descriptors and detectors beyond the rubric, as found on KITTI
 #: frames 0 and 1 by trying every pair (OpenCV 4.14). LUCID works with every detector but
 #: matches poorly here (12-21 % of its kNN matches move < 30 px, against > 95 % for the
@@ -219,6 +223,7 @@ _MSD_SIFT_REASON = (
 EXTRA_INVALID_PAIRS: dict[tuple[str, str], str] = {
     **{(det, "kaze"): _KAZE_REASON for det in DETECTORS if det != "kaze"},
     ("msd", "sift"): _MSD_SIFT_REASON,
+    **{("grid", desc): _GRID_REASON for desc in DESCRIPTORS},
 }
 
 #: (detector, descriptor) → why the pair cannot work. The one table of invalid pairs.

@@ -1,5 +1,7 @@
 """The keypoint detectors OpenCV ships beyond the rubric's seven: KAZE, AGAST, MSER, Star,
-MSD and Harris–Laplace (the last three from opencv-contrib's ``xfeatures2d``).
+MSD and Harris–Laplace (the last three from opencv-contrib's ``xfeatures2d``), and ``grid``:
+points on a regular lattice for the trackers (KLT, DIS, Farnebäck) to follow, so dense flow
+gives correspondences on a grid inside the boxes rather than at corners.
 
 Same contract as :mod:`ttc.features.keypoints` (which merges :data:`EXTRA_DETECTORS` into its
 registry): a frozen parameter dataclass per detector, named by ``name``, and a function
@@ -18,10 +20,12 @@ from typing import Any
 import numpy as np
 
 from ttc.features.base import (
+    check_gray,
     detect_with,
     opencv_constant,
     opencv_factory,
     opencv_has,
+    points_array,
     require_choice,
     require_name,
     require_positive,
@@ -152,6 +156,41 @@ class HarrisLaplaceParams:
         require_choice("n_layers", self.n_layers, (2, 4))
 
 
+@dataclass(frozen=True)
+class GridParams:
+    """Points on a regular lattice every ``step`` pixels, ``margin`` pixels from the image
+    border (size ``step`` px, no angle, octave 0): what a tracker follows when the
+    correspondences should cover the box evenly instead of its corners. No descriptor is
+    computed on them (:data:`ttc.features.descriptors.INVALID_PAIRS`): use ``matcher`` klt,
+    dis or farneback."""
+
+    name: str = "grid"
+    step: int = 8
+    margin: int = 8
+    subpixel: bool = False
+
+    def __post_init__(self) -> None:
+        require_name(self, "grid")
+        require_positive(step=self.step)
+        if self.margin < 0:
+            raise ValueError(f"margin must be >= 0 pixels, got {self.margin}")
+
+
+def grid_points(shape: tuple[int, int], p: GridParams) -> np.ndarray:
+    """The (N, 7) keypoint array of the lattice of :class:`GridParams` ``p`` on an image of
+    ``shape`` (H, W) pixels, row by row; empty when the margins leave no room."""
+    h, w = shape
+    xs = np.arange(p.margin, w - p.margin, p.step, dtype=np.float64)
+    ys = np.arange(p.margin, h - p.margin, p.step, dtype=np.float64)
+    gx, gy = np.meshgrid(xs, ys)
+    return points_array(np.column_stack([gx.ravel(), gy.ravel()]), float(p.step))
+
+
+def _detect_grid(gray: np.ndarray, p: GridParams) -> np.ndarray:
+    check_gray(gray)
+    return grid_points(gray.shape[:2], p)
+
+
 def _detect_kaze(gray: np.ndarray, p: KazeParams) -> np.ndarray:
     detector = opencv_factory("KAZE")(
         extended=p.extended, upright=p.upright, threshold=p.threshold, nOctaves=p.n_octaves,
@@ -204,6 +243,7 @@ EXTRA_DETECTORS: dict[str, type] = {
     "star": StarParams,
     "msd": MsdParams,
     "harris_laplace": HarrisLaplaceParams,
+    "grid": GridParams,
 }
 
 EXTRA_DETECT: dict[str, Callable[[np.ndarray, Any], np.ndarray]] = {
@@ -213,6 +253,7 @@ EXTRA_DETECT: dict[str, Callable[[np.ndarray, Any], np.ndarray]] = {
     "star": _detect_star,
     "msd": _detect_msd,
     "harris_laplace": _detect_harris_laplace,
+    "grid": _detect_grid,
 }
 
 #: OpenCV algorithm behind each extra detector (for :func:`detector_available`).
