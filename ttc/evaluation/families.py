@@ -93,13 +93,13 @@ def verdict_sentence(table: pd.DataFrame) -> list[str]:
         )
         firsts = others.groupby("family", sort=False).head(1)
         per_family = "; ".join(
-            f"Best {f['family']}: {f['setting']} rank {int(f['rank'])}, "
+            f"best {f['family']}: {f['setting']} rank {int(f['rank'])}, "
             f"median MiD {f['camera_mid_median']:.2f}, {f['verdict']}"
             for _, f in firsts.iterrows()
         )
         out.append(
             f"**{dataset}**: best classic setting {best['setting']} (rank {int(best['rank'])}, "
             f"median MiD {best['camera_mid_median']:.2f} [{best['camera_mid_median_lo']:.2f}, "
-            f"{best['camera_mid_median_hi']:.2f}]); {lead}. {per_family}."
+            f"{best['camera_mid_median_hi']:.2f}]); {lead}. {per_family[:1].upper()}{per_family[1:]}."
         )
     return out
