@@ -32,11 +32,11 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     ),
     "collect": Subcommand("experiments.collect", "merge a sweep's runs and print its summary"),
     "report": Subcommand("experiments.report", "write the FP.5 / FP.6 reports of sweeps"),
-    "compare": Subcommand("experiments.compare", "compare two sweeps setting by setting"),
-    "show": Subcommand("experiments.show", "pictures of one frame pair of one setting"),
-    "download": Subcommand("experiments.download", "download (or complete) the KITTI frames"),
-    "benchmark": Subcommand("experiments.benchmark", "time the main sweep (cold and warm)"),
-    "schema": Subcommand("experiments.schema", "print the columns of the rows dataset"),
+    "compare": Subcommand("experiments.tools.compare", "compare two sweeps setting by setting"),
+    "show": Subcommand("experiments.tools.show", "pictures of one frame pair of one setting"),
+    "download": Subcommand("experiments.data.download", "download (or complete) the KITTI frames"),
+    "benchmark": Subcommand("experiments.tools.benchmark", "time the main sweep (cold and warm)"),
+    "schema": Subcommand("experiments.tools.schema", "print the columns of the rows dataset"),
 }
 #: Subcommands whose module reads no arguments: ``--help`` is answered here.
 NO_ARGUMENTS = ("schema",)

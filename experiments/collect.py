@@ -14,8 +14,8 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from experiments import progress, store
-from experiments.finished import nothing_computed_line, summary_head
 from experiments.paths import shown
+from experiments.sweep.finished import nothing_computed_line, summary_head
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
 SETTING_COLUMNS = list(SETTING_AXES)

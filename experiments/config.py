@@ -19,7 +19,8 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from experiments import datasets, paths
+from experiments import paths
+from experiments.data import datasets
 from experiments.identity import (  # noqa: F401 (also imported from here)
     NEUTRAL_OPTIONS,
     SETTING_KEYS,
@@ -61,7 +62,7 @@ class DatasetConfig:
     root: str = MISSING  # data root (``$TTC_DATA_DIR`` or ../shared/data)
     sequence: str = "kitti/2011_09_26"
     first: int = 0
-    last: int | None = 18  # None: the recording's last frame (experiments/datasets.py)
+    last: int | None = 18  # None: the recording's last frame (experiments/data/datasets.py)
     step: int = 1
     projection: str = "P_rect_02"
     min_scan_points: int = 100_000
@@ -89,7 +90,7 @@ class CacheConfig:
 
 @dataclass
 class ShowConfig:
-    """Pictures of one frame / frame pair (``python -m experiments.show``)."""
+    """Pictures of one frame / frame pair (``python -m experiments.tools.show``)."""
 
     frame: int = 1  # current frame; the previous is frame - dataset.step
     out_dir: str = "${results_root}/pictures"
@@ -255,8 +256,8 @@ def sequence_dir(cfg: DictConfig) -> Path:
 def frame_range_from_config(cfg: DictConfig) -> FrameRange:
     """The core's :class:`FrameRange` for a composed config."""
     ds = cfg.dataset
-    if ds.get("generator") is not None:  # generated pairs (experiments/scale_truth.py)
-        from experiments.scale_truth import generated_frame_range
+    if ds.get("generator") is not None:  # generated pairs (experiments/data/scale_truth.py)
+        from experiments.data.scale_truth import generated_frame_range
 
         return generated_frame_range(cfg, sequence_dir(cfg))
     recording = sequence_dir(cfg)
@@ -274,7 +275,7 @@ def prepared_frame_range(cfg: DictConfig) -> FrameRange:
     """:func:`frame_range_from_config`, a generated dataset's recording written first when
     missing (``dataset=scale_truth``): what a run reads."""
     if cfg.dataset.get("generator") is not None:
-        from experiments.scale_truth import materialise_config
+        from experiments.data.scale_truth import materialise_config
 
         materialise_config(cfg, sequence_dir(cfg))
     return frame_range_from_config(cfg)
@@ -291,7 +292,7 @@ def missing_data_message(cfg: DictConfig) -> str:
         f"KITTI frames not found: {recording} does not exist.\n"
         "Point TTC_DATA_DIR (or dataset.root=...) at a folder holding "
         f"{cfg.dataset.sequence}/, or fetch the 78 frames with:\n"
-        f"  python -m experiments.download --data-root {data_root(cfg)}"
+        f"  python -m experiments.data.download --data-root {data_root(cfg)}"
     )
 
 

@@ -13,7 +13,8 @@ from typing import Any
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import datasets, paths
+from experiments import paths
+from experiments.data import datasets
 from ttc import settings
 from ttc.features.descriptors import NO_DESCRIPTOR
 from ttc.features.learned_params import LEARNED_MATCHERS
@@ -26,7 +27,7 @@ SETTING_KEYS: tuple[str, ...] = (*AXES, "lidar")
 
 def setting_entry(cfg: DictConfig, key: str) -> Any:
     """One entry of :func:`setting_config`, resolved from ``cfg[key]`` alone (the dataset
-    without its data root, named by :func:`experiments.datasets.dataset_identity`)."""
+    without its data root, named by :func:`experiments.data.datasets.dataset_identity`)."""
     value = OmegaConf.to_container(cfg[key], resolve=True)
     if key == "dataset":
         recording = paths.resolve(value["root"]) / value["sequence"]

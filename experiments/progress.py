@@ -2,7 +2,7 @@
 the end-of-sweep summary. They live in ``<sweep>/.progress/<id of the sweep invocation>/``,
 named to the jobs by the environment variable :data:`PROGRESS_ENV`, so two sweeps into one
 folder count their own jobs. Light on purpose (no pandas): the remembered-command check
-(:mod:`experiments.finished`) imports it before anything else."""
+(:mod:`experiments.sweep.finished`) imports it before anything else."""
 
 from __future__ import annotations
 

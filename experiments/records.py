@@ -1,7 +1,7 @@
 """Run records: what a record holds before a run (ids, setting, versions, machine) and what
 its outcome adds (status, message, times, memory, row statistics). Used for a setting run
-alone (:mod:`experiments.run`), for the settings of a batch (:mod:`experiments.batch`) and
-for invalid pairs recorded at planning time (:mod:`experiments.plan`)."""
+alone (:mod:`experiments.run`), for the settings of a batch (:mod:`experiments.sweep.batch`) and
+for invalid pairs recorded at planning time (:mod:`experiments.sweep.plan`)."""
 
 from __future__ import annotations
 

@@ -7,8 +7,8 @@ Examples::
     python -m experiments.run -m detector=fast,orb matcher=glob(*) sweep_name=mine
 
 A job is one setting, or in a sweep a batch of settings that share their expensive stages
-(``batch=<id>``, planned by the sweeper: :mod:`experiments.plan`, run by
-:mod:`experiments.batch`). A setting's rows go to ``<sweep>/runs/<run_id>.parquet`` (its
+(``batch=<id>``, planned by the sweeper: :mod:`experiments.sweep.plan`, run by
+:mod:`experiments.sweep.batch`). A setting's rows go to ``<sweep>/runs/<run_id>.parquet`` (its
 batch's rows file in a batch) and its record (resolved config, code and package versions,
 timings, status, rows checksum, identities of the input files read) to ``<run_id>.json``.
 The sweeper launches no job for a complete run (:func:`store.incomplete_reason`), and a job
@@ -23,7 +23,7 @@ from __future__ import annotations
 import sys
 
 if __name__ == "__main__":  # a finished sweep is reported before the slow imports below
-    from experiments.finished import report_if_finished
+    from experiments.sweep.finished import report_if_finished
 
     if report_if_finished(sys.argv[1:]):
         sys.exit(0)
@@ -42,7 +42,6 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from experiments import paths, progress, store
-from experiments.batch import run_batch
 from experiments.config import (
     config_problems,
     missing_data_message,
@@ -53,9 +52,10 @@ from experiments.config import (
     setting_hash,
     settings_from_config,
 )
-from experiments.first_run import ensure_data
+from experiments.data.first_run import ensure_data
 from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
-from experiments.warm_up import warm_up  # noqa: F401 (the ttc launcher's workers call it)
+from experiments.sweep.batch import run_batch
+from experiments.sweep.warm_up import warm_up  # noqa: F401 (the ttc launcher's workers call it)
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
 from ttc.engine.stages import input_files
@@ -192,7 +192,7 @@ def main(cfg: DictConfig) -> None:
         if problems:
             sys.exit("invalid configuration:\n  " + "\n  ".join(problems))
     sweep_dir = output_dir()
-    if cfg.batch:  # a batch of settings planned by the sweeper (experiments.plan)
+    if cfg.batch:  # a batch of settings planned by the sweeper (experiments.sweep.plan)
         for record in run_batch(cfg, sweep_dir):
             if record.get("status") == "failed" and not record.get("resumed"):
                 label = " ".join(f"{a}={record.get(a)}" for a in AXES[:8])
@@ -226,5 +226,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    sys.argv[1:] = ensure_data(sys.argv[1:])  # data on first run (experiments/first_run.py)
+    sys.argv[1:] = ensure_data(sys.argv[1:])  # data on first run (experiments/data/first_run.py)
     main()

@@ -57,7 +57,7 @@ def two_ways(tmp_path_factory) -> dict[str, object]:
     # the same sweep in other words (a default restated): the sweeper's plan memory
     again = run([*GRID, "print_rows=20"], tmp / "batched", tmp / "cache")
     assert again.returncode == 0, again.stderr[-3000:]
-    # the same command line: recognised before Hydra starts (experiments/finished.py)
+    # the same command line: recognised before Hydra starts (experiments/sweep/finished.py)
     remembered = run(GRID, tmp / "batched", tmp / "cache")
     assert remembered.returncode == 0, remembered.stderr[-3000:]
     after = {p.name: p.stat().st_mtime_ns for p in runs_dir.iterdir()}

@@ -17,7 +17,7 @@ pytestmark = pytest.mark.slow
 def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
     res = subprocess.run(
-        [sys.executable, "-m", "experiments.benchmark", "--reduced", "--out", str(out),
+        [sys.executable, "-m", "experiments.tools.benchmark", "--reduced", "--out", str(out),
          "--workdir", str(tmp_path / "work")],
         cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=900,
     )  # fmt: skip

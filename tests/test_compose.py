@@ -31,7 +31,7 @@ CONF = PROJECT_ROOT / "conf"
 #: Groups of the root config's defaults list: a job changes them with ``group=option``.
 DEFAULTS = dict(re.findall(r"^  - (\w+): (\w+)", (CONF / "config.yaml").read_text(), re.M))
 #: Folders of conf/ that are not groups of the run config (``download``: the manifests of
-#: ``python -m experiments.download``).
+#: ``python -m experiments.data.download``).
 NOT_GROUPS = {"hydra", "download"}
 #: Groups not in the defaults list: a job adds them with ``+group=option``.
 ADDED = sorted(

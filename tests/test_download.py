@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments import download as dl
+from experiments.data import download as dl
 
 FRAMES = range(0, 4)
 IMAGE_1 = "image_02/data/0000000001.png"

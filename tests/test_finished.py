@@ -1,4 +1,4 @@
-"""The remembered sweep command (experiments/finished.py): what its key covers and when it
+"""The remembered sweep command (experiments/sweep/finished.py): what its key covers and when it
 refuses to stand in for Hydra. The end-to-end checks (a re-run recognised, a damaged run
 falling through to the sweeper) are in tests/test_batch.py and tests/test_faults.py."""
 
@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from experiments import finished, provenance
+from experiments import provenance
+from experiments.sweep import finished
 from tests.conftest import PROJECT_ROOT
 
 SWEEP = ["-m", "detector=fast,orb", "dataset.last=2"]

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from experiments import first_run, paths
+from experiments import paths
+from experiments.data import first_run
 from tests.conftest import PROJECT_ROOT
 from tests.test_download import server  # noqa: F401  (the local HTTP server fixture)
 

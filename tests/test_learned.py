@@ -145,6 +145,6 @@ def test_weights_enter_the_cache_key_only_of_learned_stages() -> None:
 
 
 def test_the_main_command_never_imports_torch() -> None:
-    code = ("import sys, experiments.run, experiments.plan, ttc.engine.runner; "
+    code = ("import sys, experiments.run, experiments.sweep.plan, ttc.engine.runner; "
             "assert 'torch' not in sys.modules")  # fmt: skip
     subprocess.run([sys.executable, "-c", code], cwd=PROJECT_ROOT, check=True)

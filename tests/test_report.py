@@ -266,17 +266,17 @@ def test_compare_two_sweeps(fp5_sweep, camera_grid, tmp_path: Path) -> None:
     out = tmp_path / "cmp.md"
     args = [str(sweep), str(sweep), "--sensor", "lidar", "--out", str(out),
             "--cache-dir", str(root / "cache")]  # fmt: skip
-    done = run_module("experiments.compare", args, root)
+    done = run_module("experiments.tools.compare", args, root)
     assert done.returncode == 0, done.stderr[-3000:]
     text = out.read_text()
     assert "5 settings in both" in text and "0 better, 0 worse, 5 same" in text
     # the grid shares one setting (fast/brief/bf/knn, median) with the FP.5 sweep
-    done = run_module("experiments.compare", [str(camera_grid[1]), str(sweep), "--cache-dir",
+    done = run_module("experiments.tools.compare", [str(camera_grid[1]), str(sweep), "--cache-dir",
                       str(root / "cache")], root)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     assert "1 settings in both" in done.stdout and "| fast/brief |" in done.stdout
     # ignoring an axis that varies inside a sweep leaves settings ambiguous: refused
-    done = run_module("experiments.compare", [str(sweep), str(camera_grid[1]), "--ignore",
+    done = run_module("experiments.tools.compare", [str(sweep), str(camera_grid[1]), "--ignore",
                       "lidar_ttc", "--cache-dir", str(root / "cache")], root)  # fmt: skip
     assert done.returncode != 0 and "share their" in done.stderr
 

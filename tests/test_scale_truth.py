@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.scale_truth import materialise
-from experiments.schema import FRAME_COLUMNS
+from experiments.data.scale_truth import materialise
+from experiments.tools.schema import FRAME_COLUMNS
 from tests.conftest import PROJECT_ROOT
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
@@ -294,11 +294,11 @@ def test_a_kitti_raw_drive_can_be_a_source(kitti_dir: Path, tmp_path: Path) -> N
 
 
 def test_show_writes_a_generated_pair_it_has_to_generate_first(tmp_path):
-    """``experiments.show dataset=scale_truth`` with an empty cache writes the generated
+    """``experiments.tools.show dataset=scale_truth`` with an empty cache writes the generated
     recording first, as a run does (it stopped at the missing calibration file)."""
     env = {**os.environ, "TTC_RESULTS_DIR": str(tmp_path), "TTC_CACHE_DIR": str(tmp_path / "c")}
     out = tmp_path / "pictures"
-    done = run(["experiments.show", "dataset=scale_truth", "dataset.last=3", "show.frame=1",
+    done = run(["experiments.tools.show", "dataset=scale_truth", "dataset.last=3", "show.frame=1",
                 f"show.out_dir={out}"], env)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     pictures = sorted(p.name for p in (out / "frame_0001").iterdir())

@@ -134,7 +134,7 @@ def test_missing_data_root_says_how_to_get_it(tmp_path: Path) -> None:
     res = hydra_run([f"dataset.root={tmp_path / 'nowhere'}"], tmp_path)
     assert res.returncode != 0
     assert "KITTI frames not found" in res.stderr
-    assert "experiments.download" in res.stderr
+    assert "experiments.data.download" in res.stderr
 
 
 def test_kill_and_resume(tmp_path: Path) -> None:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from experiments.report.encode import save_png
-from experiments.show import FRAME_PICTURES, PAIR_PICTURES, with_default_overrides
+from experiments.tools.show import FRAME_PICTURES, PAIR_PICTURES, with_default_overrides
 from ttc import draw
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
@@ -283,7 +283,7 @@ def test_default_overrides_yield_to_the_user() -> None:
 def run_show(tmp_path: Path, cache_dir: Path, frame: int) -> subprocess.CompletedProcess:
     env = {**os.environ, "TTC_CACHE_DIR": str(cache_dir),
            "TTC_RESULTS_DIR": str(tmp_path / "sweeps")}  # fmt: skip
-    cmd = [sys.executable, "-m", "experiments.show", f"show.frame={frame}",
+    cmd = [sys.executable, "-m", "experiments.tools.show", f"show.frame={frame}",
            f"show.out_dir={tmp_path / 'pictures'}", f"dataset.last={max(frame, 1)}"]  # fmt: skip
     return subprocess.run(cmd, cwd=PROJECT_ROOT, env=env, capture_output=True, text=True,
                           timeout=120)  # fmt: skip

@@ -10,7 +10,7 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.types import RunMode
 
 from experiments.config import register_configs
-from experiments.warm_up import swept_keys, warm_up
+from experiments.sweep.warm_up import swept_keys, warm_up
 from tests.conftest import PROJECT_ROOT
 
 

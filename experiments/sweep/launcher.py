@@ -10,7 +10,7 @@ folders, logs, callbacks) as Hydra's joblib launcher, but:
   so a worker composes nothing itself;
 * the sweeper starts the workers while it plans (:meth:`SweepLauncher.warm_up`): their
   imports overlap the planning, and each calls the task module's ``warm_up(master config)``
-  (ttc-bench's: :mod:`experiments.warm_up`).
+  (ttc-bench's: :mod:`experiments.sweep.warm_up`).
 
 A worker that dies (a signal: out of memory, a crash in native code) breaks a joblib pool and
 would end the sweep with ``TerminatedWorkerError``. Instead each job that was running then is
@@ -226,7 +226,7 @@ class SweepLauncher(JoblibLauncher):
         batch = [o[len(BATCH_PREFIX) :] for o in overrides if o.startswith(BATCH_PREFIX)]
         if not batch:
             return []
-        from experiments.plan import read_plan  # noqa: PLC0415 (pandas, OpenCV)
+        from experiments.sweep.plan import read_plan  # noqa: PLC0415 (pandas, OpenCV)
 
         assert self.config is not None
         plan = read_plan(Path(str(self.config.hydra.sweep.dir)), batch[-1])

@@ -16,7 +16,7 @@ While it validates and plans a sweep that will compute something (some setting h
 record yet), the launcher starts its workers (``warm_up``); the composer's compositions are
 then handed to the launcher (``share_compositions``), whose workers reuse them.
 
-Before launching, it plans the sweep (:mod:`experiments.plan`): settings whose run is complete
+Before launching, it plans the sweep (:mod:`experiments.sweep.plan`): settings whose run is complete
 are dropped (resume before launch), invalid detector × descriptor pairs are recorded as
 skipped once per pair, and the other settings are grouped into batches that share their
 expensive stages, one job per batch (at most ``max_settings_per_job`` settings). It prints the
@@ -198,12 +198,12 @@ class SweepSweeper(Sweeper):
         return returns
 
     def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> list[list[str]]:
-        """The jobs to launch for ``batch`` (:func:`experiments.plan.make_plan`, after
+        """The jobs to launch for ``batch`` (:func:`experiments.sweep.plan.make_plan`, after
         validation), printed. A sweep planned before with the same jobs, config, config files
-        and code (:func:`experiments.plan.plan_key`) whose every run is complete launches
+        and code (:func:`experiments.sweep.plan.plan_key`) whose every run is complete launches
         nothing without composing a config."""
-        from experiments import plan as planning  # noqa: PLC0415 (pandas, OpenCV)
-        from experiments.finished import remember_command  # noqa: PLC0415
+        from experiments.sweep import plan as planning  # noqa: PLC0415 (pandas, OpenCV)
+        from experiments.sweep.finished import remember_command  # noqa: PLC0415
 
         assert self.config is not None
         key = planning.plan_key(batch, self.config)

@@ -2,7 +2,7 @@
 
 Skipped in a plain run (``--benchmark-skip``); run with
 ``pytest tests/benchmarks/test_bench_learned.py --benchmark-enable -p no:cacheprovider``. CPU,
-one torch and one OpenCV thread, as in a sweep job; ``experiments/learned_timing.py`` times the
+one torch and one OpenCV thread, as in a sweep job; ``experiments/tools/learned_timing.py`` times the
 same stages on CUDA too.
 """
 

@@ -5,7 +5,7 @@ way-off frame (:mod:`~ttc.draw.lead_pair`).
 
 Arrays in, a new BGR uint8 image out; nothing is estimated here (the marks of a top view and
 the lead box are given) and nothing is written (the writers in :mod:`experiments.report` and
-:mod:`experiments.show` encode and save). Use the names exported here
+:mod:`experiments.tools.show` encode and save). Use the names exported here
 (``from ttc import draw; draw.top_view(...)``).
 """
 

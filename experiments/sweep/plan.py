@@ -12,7 +12,7 @@ config with Hydra (:class:`experiments.sweep.compose.Composer`), then:
    ``<sweep>/.plan/<batch id>.json``.
 
 A batch of one setting is launched as that setting's own job (exactly as without batches);
-a larger one as one job with ``batch=<batch id>`` (:mod:`experiments.batch` runs it).
+a larger one as one job with ``batch=<batch id>`` (:mod:`experiments.sweep.batch` runs it).
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import progress, store
-from experiments.finished import plan_line
 from experiments.identity import setting_hash
 from experiments.records import now, peak_rss_mb, record_head
 from experiments.sweep.compose import Composer
+from experiments.sweep.finished import plan_line
 from ttc.features.matching import check_features
 from ttc.settings import axes_with_role
 

@@ -3,9 +3,9 @@ against the compute floor.
 
 Usage::
 
-    python -m experiments.benchmark                 # every figure (long: see --parts)
-    python -m experiments.benchmark --parts fp6,small --skip-nocache
-    python -m experiments.benchmark --reduced       # CI: 2 detectors x 2 descriptors, 0-5
+    python -m experiments.tools.benchmark                 # every figure (long: see --parts)
+    python -m experiments.tools.benchmark --parts fp6,small --skip-nocache
+    python -m experiments.tools.benchmark --reduced       # CI: 2 detectors x 2 descriptors, 0-5
 
 Figures (all wall-clock seconds on this machine, written to a JSON report):
 
@@ -17,7 +17,7 @@ Figures (all wall-clock seconds on this machine, written to a JSON report):
   once per detector × descriptor × matcher, the work the harness really has to do because NN
   and kNN share one k=2 query; ``cold_over_floor_unique`` is the figure of issue #11;
   ``floor_engine_s`` adds FP.1–FP.4 at their shared minimum
-  (:func:`experiments.floor.steps_floor_ms`): ``cold_over_floor_engine`` is the overhead;
+  (:func:`experiments.tools.floor.steps_floor_ms`): ``cold_over_floor_engine`` is the overhead;
 * ``cold_fixed_s`` / ``warm_filter_fixed_s``: the time of a cold / warm sweep before its first
   job and after its last (start-up, planning, merge, summary: ``lead_in_s + tail_s`` of the
   breakdowns);
@@ -57,9 +57,9 @@ from typing import Any
 import pandas as pd
 
 from experiments import store
-from experiments.floor import compute_floor, hydra_compose_seconds, steps_floor_ms
 from experiments.paths import base_dir, default_data_root
 from experiments.provenance import code_version, machine, package_versions
+from experiments.tools.floor import compute_floor, hydra_compose_seconds, steps_floor_ms
 from ttc.features.descriptors import RUBRIC_DESCRIPTORS
 from ttc.features.keypoints import RUBRIC_DETECTORS
 

@@ -6,7 +6,7 @@ thread, as a sweep job; cuda: the GPU, synchronised), each the median of ``--rep
 after one warm-up call. Writes a JSON list of ``{stage, device, ms_median, ms_min, n, ...}``.
 Needs the learned extra.
 
-    python -m experiments.learned_timing --device cpu cuda --repeat 5 --out timing.json
+    python -m experiments.tools.learned_timing --device cpu cuda --repeat 5 --out timing.json
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The documented schema of a sweep's ``frames.parquet`` (one row per run × frame pair × box pair).
 
 The schema table of docs/results.md is generated from :data:`FRAME_COLUMNS`
-(``python -m experiments.schema``) and the tests check real sweeps against it.
+(``python -m experiments.tools.schema``) and the tests check real sweeps against it.
 """
 
 from __future__ import annotations

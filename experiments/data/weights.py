@@ -4,7 +4,7 @@ in ``<cache>/models/yolov3_tiny``, else they are downloaded into it on first use
 
 The download follows a manifest (``conf/download/yolov3_tiny.yaml``: the archive's URL, size
 and sha256, and each member's path, size and sha256) through the resumable, verified
-downloader of :mod:`experiments.fetch`; the members are checked again, written atomically, and
+downloader of :mod:`experiments.data.fetch`; the members are checked again, written atomically, and
 the archive is deleted. ``TTC_WEIGHTS_URL`` replaces the manifest's base URL (a mirror). The
 folder is handed to the core (and the sweep's workers) through
 :data:`ttc.features.objects.MODEL_DIR_ENV`.
@@ -23,7 +23,7 @@ from omegaconf import OmegaConf
 from tqdm import tqdm
 
 from experiments import paths
-from experiments.fetch import (  # noqa: F401 (sha256_of: part of this module's interface)
+from experiments.data.fetch import (  # noqa: F401 (sha256_of: part of this module's interface)
     DownloadError,
     FetchOptions,
     FileEntry,

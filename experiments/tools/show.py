@@ -2,9 +2,9 @@
 
 Examples::
 
-    python -m experiments.show show.frame=7
-    python -m experiments.show detector=orb descriptor=brisk lidar_ttc=cluster show.frame=18
-    python -m experiments.show show.frame=7 show.out_dir=/tmp/pictures
+    python -m experiments.tools.show show.frame=7
+    python -m experiments.tools.show detector=orb descriptor=brisk lidar_ttc=cluster show.frame=18
+    python -m experiments.tools.show show.frame=7 show.out_dir=/tmp/pictures
 
 Writes PNGs into ``<show.out_dir>/frame_NNNN/``:
 
@@ -39,7 +39,7 @@ from experiments.config import (
     register_configs,
     settings_from_config,
 )
-from experiments.first_run import ensure_data
+from experiments.data.first_run import ensure_data
 from experiments.report.encode import save_png
 from experiments.run import check_data
 from ttc import draw

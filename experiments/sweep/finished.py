@@ -82,7 +82,7 @@ def remember_command(sweep_dir: Path, run_ids: Sequence[str]) -> None:
 def plan_line(
     settings: int, complete: int, invalid: int, to_compute: int, jobs: int, batches: int
 ) -> str:
-    """The sweep plan in one line (:meth:`experiments.plan.Plan.summary`)."""
+    """The sweep plan in one line (:meth:`experiments.sweep.plan.Plan.summary`)."""
     return (
         f"sweep plan: {settings} settings: {complete} already complete (not launched), "
         f"{invalid} skipped as invalid detector x descriptor pairs, {to_compute} to compute "

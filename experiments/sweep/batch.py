@@ -1,4 +1,4 @@
-"""One batch of settings in one job (``batch=<id>``, planned by :mod:`experiments.plan`).
+"""One batch of settings in one job (``batch=<id>``, planned by :mod:`experiments.sweep.plan`).
 
 The batch's settings run together through :func:`ttc.engine.runner.run_settings` (expensive stages
 streamed once per upstream group, FP.1–FP.4 pieces computed once per pair for the settings
@@ -22,9 +22,9 @@ from omegaconf import DictConfig
 
 from experiments import progress, store
 from experiments.config import prepared_frame_range
-from experiments.plan import read_plan
 from experiments.records import now, peak_rss_mb, record_head, row_statistics
 from experiments.sweep.compose import core_settings
+from experiments.sweep.plan import read_plan
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_settings
 from ttc.engine.stages import input_files

