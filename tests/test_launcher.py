@@ -144,8 +144,14 @@ def test_worker_processes_end_with_the_sweep() -> None:
     assert not pids & {c.pid for c in psutil.Process().children(recursive=True)}
 
     # without waiting (what a sweep does): the call returns, the workers exit on their own
+    from joblib.externals.loky import get_reusable_executor, reusable_executor  # noqa: PLC0415
+
     pids = set(Parallel(n_jobs=2, backend="loky")(delayed(os.getpid)() for _ in range(4)))
+    pool = get_reusable_executor(reuse=True)  # the pool the jobs ran on
     shut_down_workers(2, wait=False)
+    # that pool was told to stop, not replaced by a new one (which loky does, after waiting
+    # for the old one's workers, when asked with other arguments than joblib's)
+    assert pool._flags.shutdown and reusable_executor._executor is pool
     procs = []
     for pid in pids:
         with contextlib.suppress(psutil.NoSuchProcess):  # already gone

@@ -141,6 +141,10 @@ def shut_down_workers(n_jobs: int | None, wait: bool = True, kill: bool = False)
     for reuse, each holding its imports and in-memory stage cache (~0.7 GB on ``grand``)
     while the main process merges and ranks. ``wait=False``: tell them to exit and go on
     (they are gone within a fraction of a second; waiting for it cost a sweep ~0.3 s);
-    ``kill=True``: end them in the middle of their jobs (an interrupted sweep)."""
-    executor = get_reusable_executor(max_workers=effective_n_jobs(n_jobs))
+    ``kill=True``: end them in the middle of their jobs (an interrupted sweep).
+
+    ``reuse=True`` fetches the pool the jobs ran on whatever its settings: asked with other
+    arguments than joblib's (its ``env`` of thread limits), loky would first shut that pool
+    down *waiting* for its workers (0.4 s at the end of every sweep) and start another."""
+    executor = get_reusable_executor(max_workers=effective_n_jobs(n_jobs), reuse=True)
     executor.shutdown(wait=wait, kill_workers=kill)
