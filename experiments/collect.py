@@ -26,6 +26,8 @@ SETTING_COLUMNS = list(SETTING_AXES)
 FUSED_SHOWN = 3
 #: Axes that change only the lidar TTC: a sweep varying nothing else is ranked on the lidar.
 LIDAR_ONLY_AXES = only_sensor_axes("lidar")
+#: Rows read at once to find the lead rows (~0.2 GB as pandas frames; ``grand`` has 3 million).
+LEAD_READ_ROWS = 200_000
 #: The axis that changes only the fused TTC.
 (FUSION_AXIS,) = only_sensor_axes("fused")
 
@@ -104,13 +106,29 @@ def lead_rows(sweep_dir: Path) -> pd.DataFrame:
     file = pq.ParquetFile(Path(sweep_dir) / store.FRAMES_FILE)
     columns = [c for c in file.schema_arrow.names if c not in ev.NOT_JUDGED_COLUMNS]
     parts = [
-        ev.lead_rows(file.read_row_group(group, columns=columns).to_pandas())
-        for group in range(file.num_row_groups)
+        ev.lead_rows(file.read_row_groups(groups, columns=columns).to_pandas())
+        for groups in _row_group_chunks(file.metadata)
     ]
     if not parts:
         return file.schema_arrow.empty_table().select(columns).to_pandas()
     # a run's rows of one frame pair may straddle two row groups: reduce once more
     return ev.lead_rows(pd.concat(parts, ignore_index=True)) if len(parts) > 1 else parts[0]
+
+
+def _row_group_chunks(metadata: pq.FileMetaData) -> list[list[int]]:
+    """Consecutive row groups of a parquet file in chunks of at most :data:`LEAD_READ_ROWS`
+    rows (a row group larger than that is a chunk of its own). Reading 140 small row groups
+    one by one cost a 74,000-row sweep 1.1 s; a chunk is read and reduced at once."""
+    chunks: list[list[int]] = []
+    rows = 0
+    for group in range(metadata.num_row_groups):
+        n = metadata.row_group(group).num_rows
+        if not chunks or rows + n > LEAD_READ_ROWS:
+            chunks.append([])
+            rows = 0
+        chunks[-1].append(group)
+        rows += n
+    return chunks
 
 
 def summarise_sweep(

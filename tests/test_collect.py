@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import importlib
+
 import pandas as pd
+import pytest
 
 from experiments.collect import ranked_sensor
 
@@ -32,10 +35,15 @@ def test_a_fusion_sweep_ranks_on_the_fused_ttc() -> None:
     )
 
 
-def test_lead_rows_read_by_row_group_are_the_whole_files(tmp_path) -> None:
-    """The summary's rows (read a row group at a time, without the columns no metric reads)
+@pytest.mark.parametrize("chunk_rows", [3, 6, 200_000])
+def test_lead_rows_read_by_row_group_are_the_whole_files(tmp_path, monkeypatch, chunk_rows) -> None:
+    """The summary's rows (read in chunks of row groups, without the columns no metric reads)
     are :func:`ttc.evaluation.lead_rows` of the whole file: a pair without a lead row keeps
-    its first row, blanked, also when the pair's rows straddle two row groups."""
+    its first row, blanked, also when the pair's rows straddle two chunks (row groups of 3, 3
+    and 2 rows read one by one, as 6 + 2 rows, or at once)."""
+    from experiments import collect
+
+    monkeypatch.setattr(collect, "LEAD_READ_ROWS", chunk_rows)
     import numpy as np
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -55,7 +63,53 @@ def test_lead_rows_read_by_row_group_are_the_whole_files(tmp_path) -> None:
     )
     pq.write_table(pa.Table.from_pandas(rows), tmp_path / store.FRAMES_FILE, row_group_size=3)
     assert pq.ParquetFile(tmp_path / store.FRAMES_FILE).num_row_groups == 3
+    groups = collect._row_group_chunks(pq.ParquetFile(tmp_path / store.FRAMES_FILE).metadata)
+    assert groups == {3: [[0], [1], [2]], 6: [[0, 1], [2]], 200_000: [[0, 1, 2]]}[chunk_rows]
     got = lead_rows(tmp_path).sort_values(["run_id", "frame"], ignore_index=True)
     whole = ev.lead_rows(rows.drop(columns="git_commit"))
     pd.testing.assert_frame_equal(got, whole.sort_values(["run_id", "frame"], ignore_index=True))
     np.testing.assert_array_equal(got["ttc_camera"], [1.0, np.nan, 2.0, 3.0])  # a/2: no lead
+
+
+def _sweep_of_runs(folder, n_runs: int) -> None:
+    """A sweep folder of ``n_runs`` stored runs (three rows each, two detectors)."""
+    from experiments import store
+
+    for i in range(n_runs):
+        rows = pd.DataFrame(
+            {
+                "run_id": f"r{i:03d}",
+                "detector": ["fast", "orb"][i % 2],
+                "descriptor": "brief",
+                "frame": [1, 2, 3],
+                "ttc_camera": [10.0 + i, 9.0 + i, 8.0 + i],
+            }
+        )
+        store.save_run(folder, {"run_id": f"r{i:03d}", "status": "ok", "n_rows": 3}, rows)
+
+
+def test_the_merge_reads_ahead_without_changing_a_byte_or_hiding_a_corrupt_file(
+    tmp_path, monkeypatch
+) -> None:
+    """Rows files read by threads ahead of the writer give the same ``frames.parquet``, byte
+    for byte, as reading them one at a time; a corrupt file in the middle is named and no
+    merged file is written."""
+    from experiments import store
+
+    merge_module = importlib.import_module("experiments.store.merge")  # `store.merge`: a function
+    _sweep_of_runs(tmp_path, 30)
+    store.merge(tmp_path)
+    ahead = (tmp_path / store.FRAMES_FILE).read_bytes()
+    monkeypatch.setattr(merge_module, "READ_AHEAD", 1)
+    monkeypatch.setattr(merge_module, "READ_THREADS", 1)
+    store.merge(tmp_path)
+    assert (tmp_path / store.FRAMES_FILE).read_bytes() == ahead
+    assert pd.read_parquet(tmp_path / store.FRAMES_FILE)["run_id"].nunique() == 30
+
+    monkeypatch.undo()
+    (tmp_path / store.FRAMES_FILE).unlink()
+    bad = tmp_path / store.RUNS_DIR / "r017.parquet"
+    bad.write_bytes(bad.read_bytes()[:40])
+    with pytest.raises(store.StoreError, match="r017.parquet.*corrupt"):
+        store.merge(tmp_path)
+    assert not (tmp_path / store.FRAMES_FILE).exists()
