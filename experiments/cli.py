@@ -1,4 +1,4 @@
-"""``ttc-bench``: one command name for the ``python -m experiments.<module>`` entry points.
+"""``ttc-bench``: one command name for the ``python -m experiments...`` entry points.
 
 Each subcommand runs its module exactly as ``python -m`` does (same ``__main__`` code, same
 arguments, Hydra overrides passed through untouched), so the two spellings never drift::
@@ -37,6 +37,9 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     "download": Subcommand("experiments.data.download", "download (or complete) the KITTI frames"),
     "benchmark": Subcommand("experiments.tools.benchmark", "time the main sweep (cold and warm)"),
     "schema": Subcommand("experiments.tools.schema", "print the columns of the rows dataset"),
+    "learned-timing": Subcommand(
+        "experiments.tools.learned_timing", "per-stage CPU / CUDA times of the learned features"
+    ),
 }
 #: Subcommands whose module reads no arguments: ``--help`` is answered here.
 NO_ARGUMENTS = ("schema",)
@@ -45,7 +48,10 @@ NO_ARGUMENTS = ("schema",)
 def usage() -> str:
     """The top-level help: every subcommand with its summary."""
     width = max(map(len, SUBCOMMANDS))
-    lines = [f"  {name:<{width}}  {sub.summary}" for name, sub in SUBCOMMANDS.items()]
+    lines = [
+        f"  {name:<{width}}  {sub.summary} (python -m {' '.join([sub.module, *sub.prefix])})"
+        for name, sub in SUBCOMMANDS.items()
+    ]
     return (
         "usage: ttc-bench SUBCOMMAND [ARGS ...]\n\n"
         "Camera + lidar time-to-collision benchmark on KITTI.\n\nsubcommands:\n"
