@@ -43,6 +43,7 @@ from ttc.io.calibration import PROJECTIONS
 from ttc.io.frames import recording_frames
 from ttc.settings import AXIS_TABLE, FrameRange, Settings
 from ttc.steps.lidar import LaneCropParams
+from ttc.steps.object_lidar import ObjectLidarParams
 
 #: Config groups whose options each pick one parameter class by name (ttc.settings.AXIS_TABLE).
 NAMED_GROUPS: dict[str, Mapping[str, type]] = {
@@ -74,10 +75,12 @@ class DatasetConfig:
 
 @dataclass
 class LidarConfig:
-    """Lidar association: ego-lane crop and the shrink factor applied to boxes."""
+    """Lidar association: ego-lane crop (the lead), the shrink factor applied to boxes, and
+    every object box's own points (``objects``)."""
 
     crop: LaneCropParams = field(default_factory=LaneCropParams)
     shrink: float = 0.10
+    objects: ObjectLidarParams = field(default_factory=ObjectLidarParams)
 
 
 @dataclass
@@ -211,6 +214,7 @@ SETTINGS_FIELDS: dict[str, tuple[tuple[str, ...], Any]] = {
     "detector": (("detector",), lambda d: _params(d, DETECTORS[d["name"]])),
     "lane": (("lidar",), lambda lidar: _params(lidar["crop"], LaneCropParams)),
     "lidar_shrink": (("lidar",), lambda lidar: float(lidar["shrink"])),
+    "object_lidar": (("lidar",), lambda lidar: _params(lidar["objects"], ObjectLidarParams)),
 }
 
 
@@ -314,10 +318,11 @@ def config_problems(cfg: DictConfig) -> list[str]:
             _to_object(cfg[group], schema)
         except (ValueError, TypeError) as exc:
             problems.append(f"{group}: {exc}")
-    try:
-        _to_object(cfg.lidar.crop, LaneCropParams)
-    except (ValueError, TypeError) as exc:
-        problems.append(f"lidar.crop: {exc}")
+    for key, schema in (("crop", LaneCropParams), ("objects", ObjectLidarParams)):
+        try:
+            _to_object(cfg.lidar[key], schema)
+        except (ValueError, TypeError) as exc:
+            problems.append(f"lidar.{key}: {exc}")
     ds = cfg.dataset
     recording = sequence_dir(cfg)
     first, step = int(ds.first), int(ds.step)

@@ -5,25 +5,37 @@ from __future__ import annotations
 
 import hashlib
 import inspect
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from experiments.paths import default_cache_dir, default_data_root
-from experiments.recordings import recording_of, run_ids_by_recording
+from experiments.recordings import drive_name, recording_of, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache, Task, cache_key
+from ttc.engine.stages import FrameStages
 from ttc.evaluation import lead_distance, lead_status
 from ttc.evaluation import reference as reference_module
+from ttc.evaluation.object_reference import object_reference
+from ttc.features.objects import coco_names
+from ttc.io.calibration import load_calibration
 from ttc.io.frames import (
     file_identity,
     frame_files,
+    frame_interval,
     read_frame_times,
+    read_image,
     read_lidar_scan,
     recording_frames,
 )
+from ttc.settings import FrameRange, Settings
+from ttc.steps.lidar import associate_lead
+from ttc.steps.object_lidar import associate_objects
+
+#: The per-pair ego speed column of the rows (m/s).
+EGO_SPEED = "ego_speed_mps"
 
 #: Bump to invalidate every cached reference (the key also holds the source of ttc/evaluation/lead_distance.py, lead_status.py and reference.py).
 REFERENCE_CACHE_VERSION = 1
@@ -106,4 +118,75 @@ def recording_references(
             continue
         cache = cache if cache is not None else StageCache(default_cache_dir())
         out[sequence] = sequence_reference(root / sequence, cache)
+    return out
+
+
+def recording_boxes(
+    sequence_dir: Path, settings: Settings, cache: StageCache, projection: str = "P_rect_02"
+) -> tuple[pd.DataFrame, np.ndarray, int]:
+    """Every YOLO box of every frame of a recording with its object's nearest face
+    (:func:`ttc.steps.object_lidar.associate_objects`) and whether it is the ego lane's lead
+    (:func:`ttc.steps.lidar.associate_lead`) and its bearing (degrees left of the forward axis,
+    the median of its points'), under ``settings``' objects, lane crop, shrink
+    and object range, projected with ``projection``; the YOLO boxes and scans come from the
+    stage cache (a sweep computed them). Returns the boxes (:func:`ttc.evaluation.object_reference.object_reference`'s
+    input), the frame times (s, index = frame) and the image width (px)."""
+    frames = recording_frames(sequence_dir)
+    rng = FrameRange(Path(sequence_dir), first=frames[0], last=frames[-1], projection=projection)
+    stages = FrameStages(settings, rng, cache)
+    calib = load_calibration(sequence_dir, rng.projection)
+    names = coco_names(settings.objects)
+    parts = []
+    for index in frames:
+        obj, lid = (cache.get(t).arrays for t in (stages.objects(index), stages.lidar(index)))
+        roi = obj["roi"]
+        near = associate_objects(lid["object_points"], calib.velo_to_image, roi,
+                                 settings.lidar_shrink, settings.object_lidar)  # fmt: skip
+        lead = associate_lead(lid["points"], calib.velo_to_image, roi, settings.lidar_shrink).lead
+        pts = lid["object_points"]
+        angle = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))
+        bearing = [float(np.median(angle[near.owner == b])) if near.n_points[b] else np.nan
+                   for b in range(len(roi))]  # fmt: skip
+        parts.append(pd.DataFrame({
+            "frame": index, "box": np.arange(len(roi)),
+            "class": [names[c] if 0 <= c < len(names) else str(c) for c in obj["class_id"]],
+            "box_x": roi[:, 0], "box_y": roi[:, 1], "box_w": roi[:, 2], "box_h": roi[:, 3],
+            "distance_m": near.distance_m, "object_points": near.n_points, "bearing_deg": bearing,
+            "is_lead": np.arange(len(roi)) == lead,
+        }))  # fmt: skip
+    times = read_frame_times(sequence_dir)
+    if times is None:
+        times = np.arange(frames[-1] + 1) * frame_interval()
+    width = read_image(frame_files(sequence_dir, frames[0]).image).shape[1]
+    return pd.concat(parts, ignore_index=True), times, int(width)
+
+
+def object_references(
+    frames: pd.DataFrame,
+    runs: pd.DataFrame,
+    settings_of: Callable[[str], tuple[Settings, FrameRange]],
+    data_dir: Path | None = None,
+    cache: StageCache | None = None,
+) -> dict[str, pd.DataFrame]:
+    """The reference of every tracked object of each real recording of the runs
+    (:func:`ttc.evaluation.object_reference.object_reference`), by recording
+    (``dataset.sequence``), with a ``recording`` column (its name); the ego speed per frame
+    from the rows' ``ego_speed_mps`` where they have it. ``settings_of(run_id)``: a run's
+    core settings and frame range (the recording's first run sets the objects, the lidar
+    association and the projection)."""
+    root = Path(data_dir) if data_dir else default_data_root()
+    cache = cache if cache is not None else StageCache(default_cache_dir())
+    out = {}
+    for sequence, ids in run_ids_by_recording(runs).items():
+        mine = frames[frames["run_id"].isin(ids)]
+        if ev.has_truth(mine):
+            continue
+        settings, rng = settings_of(ids[0])
+        boxes, times, width = recording_boxes(root / sequence, settings, cache, rng.projection)
+        ego = None
+        if EGO_SPEED in mine and mine[EGO_SPEED].notna().any():
+            per_frame = mine.groupby("frame")[EGO_SPEED].median()
+            ego = per_frame.reindex(np.arange(len(times))).to_numpy(dtype=float)
+        ref = object_reference(boxes, times, width, ego)
+        out[sequence] = ref.assign(recording=drive_name(sequence))
     return out

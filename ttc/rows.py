@@ -47,7 +47,7 @@ def error_row(prev: int, curr: int, dt: float, error: Exception) -> dict[str, An
         "lane_points_curr": 0, "boxes_prev": 0, "boxes_curr": 0, "keypoints_prev": 0,
         "keypoints_curr": 0, "described_curr": 0, "matches_total": 0,
         **{f"ms_{stage}": 0.0 for stage in PAIR_TIMED_STAGES},
-        **{f"cached_{stage}": False for stage in CACHED_STAGE_NAMES},
+        **{f"cached_{stage}": False for stage in CACHED_STAGE_NAMES}, **EMPTY_OBJECT,
         "prev_box": -1, "curr_box": -1, "is_lead": True, "box_class": -1,
         "box_confidence": np.nan, "box_x": -1, "box_y": -1, "box_w": -1, "box_h": -1,
         **EMPTY_BOX_RESULT, "lidar_reason": reasons.FRAME_ERROR,
@@ -124,6 +124,29 @@ def box_head(
         if curr_box >= 0:
             row["lidar_points_curr"] = int(np.sum(owners == curr_box))
     return row
+
+
+#: Columns of the current box's own lidar points (:func:`object_columns`), empty values.
+EMPTY_OBJECT: dict[str, Any] = {
+    "object_distance_m": np.nan, "object_spread_m": np.nan, "object_points": 0,
+    "object_frustum_points": 0,
+}  # fmt: skip
+
+
+def object_columns(assoc: Any, curr_box: int) -> dict[str, Any]:
+    """The current box's own lidar points (``assoc``: the current frame's
+    :class:`ttc.steps.object_lidar.ObjectAssociation`): ``object_distance_m`` (m, forward
+    distance of its nearest face), ``object_spread_m`` (m, depth extent), ``object_points``
+    (points kept) and ``object_frustum_points`` (points inside the shrunk box); empty values
+    for a row without a current box."""
+    if curr_box < 0:
+        return dict(EMPTY_OBJECT)
+    return {
+        "object_distance_m": float(assoc.distance_m[curr_box]),
+        "object_spread_m": float(assoc.spread_m[curr_box]),
+        "object_points": int(assoc.n_points[curr_box]),
+        "object_frustum_points": int(assoc.n_frustum[curr_box]),
+    }
 
 
 def lidar_columns(

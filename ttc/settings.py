@@ -38,6 +38,7 @@ from ttc.steps.fusion import FusionParams
 from ttc.steps.keypoint_filter import KeypointFilterParams
 from ttc.steps.lidar import LaneCropParams
 from ttc.steps.lidar_ttc import LidarTTCParams
+from ttc.steps.object_lidar import ObjectLidarParams
 
 ROLES = ("frame_stage", "pair_stage", "step", "fusion", "dataset")
 
@@ -169,7 +170,8 @@ _AXIS = {"axis": True}
 @dataclass(frozen=True)
 class Settings:
     """One value of every axis of a sweep (each a params dataclass of its stage), plus the
-    lidar association's lane crop and box shrink factor (fractions of the box)."""
+    lidar association's lane crop and box shrink factor (fractions of the box), and which
+    scan points can be an object box's own (:class:`ttc.steps.object_lidar.ObjectLidarParams`)."""
 
     detector: Any = field(metadata=_AXIS)
     descriptor: Any = field(metadata=_AXIS)
@@ -185,6 +187,7 @@ class Settings:
     objects: ObjectDetectorParams = field(default_factory=ObjectDetectorParams, metadata=_AXIS)
     lane: LaneCropParams = field(default_factory=LaneCropParams)
     lidar_shrink: float = 0.10
+    object_lidar: ObjectLidarParams = field(default_factory=ObjectLidarParams)
 
     def axes(self) -> dict[str, str]:
         """The name chosen on every axis, e.g. ``{"detector": "fast", ...}``."""

@@ -20,6 +20,7 @@ from experiments.report import (
     fp5,
     fp6,
     fp7,
+    objects_report,
     recordings_report,
     reference_report,
     truth_report,
@@ -112,6 +113,9 @@ def build_report(
     lap("fp6")
     fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
     lap("fp7")
+    if has_rows:
+        objects_report.recording_objects_report(data, ctx, out)
+    lap("objects")
     index = html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables) if html else None
     lap("html")
     times["total"] = time.perf_counter() - start
@@ -151,6 +155,7 @@ def build_drives_report(
         fp5_table = fp5.fp5_report(part, reference, ctx, folder, pictures)
         fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
         fp7_tables = fp7.fp7_report(part, reference, folder)
+        objects_report.recording_objects_report(part, ctx, folder)
         if html:
             html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables)
     table = drives_report.drives_report(data, references, out) if not data.frames.empty else None

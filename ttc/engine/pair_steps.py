@@ -16,13 +16,21 @@ from ttc.engine.cache import Lookup
 from ttc.features.keypoints import X, Y
 from ttc.features.matching import current_keypoints, pair_matches
 from ttc.io.calibration import Calibration
-from ttc.rows import MEMBER, box_head, camera_columns, lidar_columns, pair_columns
+from ttc.rows import (
+    MEMBER,
+    box_head,
+    camera_columns,
+    lidar_columns,
+    object_columns,
+    pair_columns,
+)
 from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.box_matching import count_shared_matches, match_boxes
 from ttc.steps.camera_ttc import camera_ttc
 from ttc.steps.keypoint_filter import filter_box_matches
 from ttc.steps.lidar import LeadAssociation, associate_lead
 from ttc.steps.lidar_ttc import lidar_ttc
+from ttc.steps.object_lidar import ObjectAssociation, associate_objects
 
 
 def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -64,6 +72,8 @@ class PairSteps:
         self.xy_curr = self.kp_curr[:, [X, Y]]
         self.memo: dict[str, dict] = {k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base")}
         self.assoc: tuple | None = None
+        self.object_assoc: dict[int, ObjectAssociation] | None = None
+        self.ms_objects = 0.0
 
     def rows(
         self, s: Settings, k: dict[str, str], member: int, detail: dict | None = None
@@ -76,6 +86,7 @@ class PairSteps:
         )
         box_matches, ms_fp1 = self._fp1(s, k, selected)
         uv, owners, lead_box, ms_assoc = self._association(s)
+        objects = self._objects(s)
         box_pairs = list(
             zip(box_matches.prev_box.tolist(), box_matches.curr_box.tolist(), strict=True)
         )
@@ -87,10 +98,13 @@ class PairSteps:
         base = self._base(k, selected, ms_select, ms_fp1, ms_assoc)
         rows = []
         for prev_box, curr_box in box_pairs:
-            row = {**base, **box_head(self.obj[self.curr], owners[self.curr], prev_box,
-                                      curr_box, lead_box)}  # fmt: skip
+            row = {**base, **object_columns(objects[self.curr], curr_box),
+                   **box_head(self.obj[self.curr], owners[self.curr], prev_box, curr_box,
+                              lead_box)}  # fmt: skip
+            if curr_box >= 0 and curr_box != lead_box and prev_box < 0:
+                row["lidar_points_curr"] = int(objects[self.curr].n_points[curr_box])
             if prev_box >= 0:
-                row.update(self._fp2(s, k, owners, prev_box, curr_box))
+                row.update(self._fp2(s, k, owners, objects, prev_box, curr_box, lead_box))
                 row.update(self._fp34(s, k, selected, curr_box, detail, curr_box == lead_box))
             row["box_shared_matches"] = shared.get(curr_box, 0) if prev_box >= 0 else 0
             row["error"] = ""
@@ -98,7 +112,7 @@ class PairSteps:
             rows.append(row)
         if detail is not None:
             detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
-                          lead_box=lead_box)  # fmt: skip
+                          lead_box=lead_box, objects=objects)  # fmt: skip
         return rows
 
     def _association(self, s: Settings) -> tuple[dict, dict, int, float]:
@@ -121,6 +135,22 @@ class PairSteps:
             owners = {i: a.owner for i, a in found.items()}
             self.assoc = (uv, owners, found[self.curr].lead, ms)
         return self.assoc
+
+    def _objects(self, s: Settings) -> dict[int, ObjectAssociation]:
+        """Every box's own lidar points per frame (:func:`associate_objects`), once per pair;
+        the time is added to the lane association's (the pair's ``ms_lidar``)."""
+        if self.object_assoc is None:
+            lane, obj, velo_to_image = self.lane, self.obj, self.calib.velo_to_image
+
+            def associate() -> dict[int, ObjectAssociation]:
+                return {
+                    i: associate_objects(lane[i]["object_points"], velo_to_image,
+                                         obj[i]["roi"], s.lidar_shrink, s.object_lidar)
+                    for i in (self.prev, self.curr)
+                }  # fmt: skip
+
+            self.object_assoc, self.ms_objects = _timed(associate)
+        return self.object_assoc
 
     def _fp1(self, s: Settings, k: dict[str, str], selected: Any) -> tuple[Any, float]:
         prev, curr, obj = self.prev, self.curr, self.obj
@@ -149,7 +179,7 @@ class PairSteps:
             }
             ms = {
                 "objects": pf["objects"][curr].ms,
-                "lidar": pf["lidar"][curr].ms + ms_assoc,
+                "lidar": pf["lidar"][curr].ms + ms_assoc + self.ms_objects,
                 "keypoints": pf["keypoints"][curr].ms,
                 "descriptors": pf["descriptors"][curr].ms,
                 "matching": self.match.ms + ms_select,
@@ -167,12 +197,25 @@ class PairSteps:
         return self.memo["base"][key]
 
     def _fp2(
-        self, s: Settings, k: dict[str, str], owners: dict, prev_box: int, curr_box: int
+        self,
+        s: Settings,
+        k: dict[str, str],
+        owners: dict,
+        objects: dict[int, ObjectAssociation],
+        prev_box: int,
+        curr_box: int,
+        lead_box: int,
     ) -> dict[str, Any]:
+        """FP.2 of a box pair: the lead's ego-lane points, every other box's own points."""
         key = (prev_box, curr_box, k["lidar_ttc"])
         if key not in self.memo["fp2"]:
-            pts_prev = self.lane[self.prev]["points"][owners[self.prev] == prev_box][:, :3]
-            pts_curr = self.lane[self.curr]["points"][owners[self.curr] == curr_box][:, :3]
+            p, c = self.prev, self.curr
+            if curr_box == lead_box:
+                pts_prev = self.lane[p]["points"][owners[p] == prev_box][:, :3]
+                pts_curr = self.lane[c]["points"][owners[c] == curr_box][:, :3]
+            else:
+                pts_prev = objects[p].of_box(self.lane[p]["object_points"], prev_box)[:, :3]
+                pts_curr = objects[c].of_box(self.lane[c]["object_points"], curr_box)[:, :3]
             dt = self.dt
             lid, ms = _timed(lambda: lidar_ttc(pts_prev, pts_curr, dt, s.lidar_ttc))
             self.memo["fp2"][key] = lidar_columns(lid, pts_prev, pts_curr, ms)

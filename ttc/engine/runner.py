@@ -51,6 +51,7 @@ from ttc.io.frames import (
 from ttc.rows import MEMBER, PairDetail, error_row
 from ttc.settings import FrameRange, Settings, axes_with_role
 from ttc.steps.fusion import fuse_rows
+from ttc.steps.tracks import with_tracks
 
 #: Axes computed per pair from the cached stages: they vary within a streamed group.
 STEP_AXES = axes_with_role("step")
@@ -114,8 +115,9 @@ def check_range(
 
 def finish_rows(settings: Settings, rows: pd.DataFrame) -> pd.DataFrame:
     """A setting's rows once all its frame pairs are done: the work over a whole run, the
-    fused TTC over the lead rows (:func:`ttc.steps.fusion.fuse_rows`)."""
-    return fuse_rows(rows, settings.fusion)
+    fused TTC over the lead rows (:func:`ttc.steps.fusion.fuse_rows`) and the track of every
+    box pair (:func:`ttc.steps.tracks.with_tracks`)."""
+    return with_tracks(fuse_rows(rows, settings.fusion))
 
 
 def run_setting(

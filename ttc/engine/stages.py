@@ -6,7 +6,7 @@ list of input files a run reads. Used by :mod:`ttc.engine.runner`.
 stage         key (besides its version and the OpenCV and numpy versions)  content
 ============  ==========================================================  ==============
 objects       image file, objects params, model files                      YOLO boxes
-lidar         scan file, lane crop                                         lane points
+lidar         scan file, lane crop, object range                           lane points, object-range points
 keypoints     image file, detector params                                  (N, 7) array
 descriptors   keypoints key, descriptor params                             kept kps, desc
 matches       both descriptors keys, matcher params                        k=2 candidates
@@ -56,6 +56,7 @@ from ttc.io.frames import (
 from ttc.plugins import USER, code_identity
 from ttc.settings import AXIS_BY_NAME, CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.lidar import crop_to_lane
+from ttc.steps.object_lidar import object_scan_mask
 
 #: Version of each cached stage (:data:`ttc.settings.CACHED_STAGES`).
 STAGE_VERSIONS = dict.fromkeys(CACHED_STAGE_NAMES, 1)
@@ -162,17 +163,18 @@ class FrameStages:
 
     def lidar(self, index: int) -> Task:
         path = frame_files(self.frames.sequence_dir, index).scan
-        crop = self.settings.lane
+        crop, objects = self.settings.lane, self.settings.object_lidar
 
         def compute() -> dict:
             scan = read_lidar_scan(path)
             return {
                 "points": crop_to_lane(scan.points, crop),
+                "object_points": scan.points[object_scan_mask(scan.points, objects)],
                 "n_scan": np.int64(len(scan)),
                 "n_dropped": np.int64(scan.n_dropped),
             }
 
-        parts = lambda: (file_identity(path), _params(crop))  # noqa: E731
+        parts = lambda: (file_identity(path), _params(crop), _params(objects))  # noqa: E731
         return self._task("lidar", (index,), parts, compute)
 
     def keypoints(self, index: int) -> Task:

@@ -252,7 +252,7 @@ def reference_ttc(
     status = lead_status(table["distance_m"].to_numpy(dtype=float), t, scans)
     segment = lead_segments(status)
     if not n or (segment == 0).all():  # one lead vehicle throughout
-        out = _segment_reference(table, t, window, polyorder, min_closing_speed)
+        out = segment_reference(table, t, window, polyorder, min_closing_speed)
     else:
         out = _segmented_reference(table, t, segment, window, polyorder, min_closing_speed)
     out["lead"] = status
@@ -268,10 +268,10 @@ def _segmented_reference(
     polyorder: int,
     min_closing_speed: float,
 ) -> pd.DataFrame:
-    """:func:`_segment_reference` of each lead segment on its own; ``no_lead`` frames (segment
+    """:func:`segment_reference` of each lead segment on its own; ``no_lead`` frames (segment
     −1) get NaN distances and TTCs, no collision course, not judgeable, an empty regime."""
     parts = [
-        _segment_reference(table[segment == s], t[segment == s], window, polyorder,
+        segment_reference(table[segment == s], t[segment == s], window, polyorder,
                            min_closing_speed)
         for s in np.unique(segment[segment >= 0])
     ]  # fmt: skip
@@ -292,7 +292,7 @@ NUMERIC_COLUMNS = ("distance_smooth_m", "distance_sd_m", "closing_speed_mps", "r
                    "ttc_ref_s", "mid_ref_sd", "ttc_ref_sd_s", "noise_sd_m")  # fmt: skip
 
 
-def _segment_reference(
+def segment_reference(
     table: pd.DataFrame, t: np.ndarray, window: int, polyorder: int, min_closing_speed: float
 ) -> pd.DataFrame:
     """The reference of frames (``table`` indexed by frame, times ``t`` in s) followed by one

@@ -26,14 +26,25 @@ TTC_BIN_EDGES_S: tuple[float, ...] = (0.0, 6.0, 12.0, 24.0, np.inf)
 TTC_BINS: tuple[str, ...] = ("<6s", "6-12s", "12-24s", ">24s")
 
 
-def ttc_bin(ttc_ref_s: np.ndarray | pd.Series) -> np.ndarray:
-    """Range name (:data:`TTC_BINS`) of each reference TTC (s); ``""`` where it is not a
-    finite positive number (no collision course, no reference)."""
+#: The finer ranges every object is judged in (:mod:`ttc.evaluation.object_errors`): the
+#: critical range below 6 s split at 3 s.
+OBJECT_TTC_BIN_EDGES_S: tuple[float, ...] = (0.0, 3.0, 6.0, 12.0, 24.0, np.inf)
+OBJECT_TTC_BINS: tuple[str, ...] = ("<3s", "3-6s", "6-12s", "12-24s", ">24s")
+
+
+def ttc_bin(
+    ttc_ref_s: np.ndarray | pd.Series,
+    edges: tuple[float, ...] = TTC_BIN_EDGES_S,
+    names: tuple[str, ...] = TTC_BINS,
+) -> np.ndarray:
+    """Range name (``names``, default :data:`TTC_BINS`, between ``edges`` in s) of each
+    reference TTC (s); ``""`` where it is not a finite positive number (no collision course,
+    no reference)."""
     ttc = np.asarray(ttc_ref_s, dtype=float)
     ok = np.isfinite(ttc) & (ttc > 0)
-    index = np.searchsorted(TTC_BIN_EDGES_S, np.where(ok, ttc, 0.0), side="right") - 1
-    names = np.asarray(TTC_BINS, dtype=object)[np.clip(index, 0, len(TTC_BINS) - 1)]
-    return np.where(ok, names, "")
+    index = np.searchsorted(edges, np.where(ok, ttc, 0.0), side="right") - 1
+    named = np.asarray(names, dtype=object)[np.clip(index, 0, len(names) - 1)]
+    return np.where(ok, named, "")
 
 
 def binned_metrics(judged: pd.DataFrame) -> pd.DataFrame:

@@ -1,0 +1,106 @@
+"""Judging every object: each box pair of a run against its object's reference.
+
+A run's row (``frame``, ``prev_box`` → ``curr_box``) is judged against the reference of the
+object its current box is (:func:`ttc.evaluation.object_reference.object_reference`, joined
+on ``frame`` and box). ``box_match_ok`` says whether the run's FP.1 paired the same boxes as
+the reference's linking; a wrong pairing is judged all the same (its TTC is what the run
+reports for that object). Relative TTC error ``|TTC − TTC_ref| / TTC_ref`` on the pairs with a
+judgeable reference; an invalid estimate is one that is not a finite positive number.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from scipy.stats import kendalltau
+
+from ttc.evaluation.ttc_bins import OBJECT_TTC_BIN_EDGES_S, OBJECT_TTC_BINS, ttc_bin
+
+#: Sensors judged per object (their TTC columns are ``ttc_<sensor>``).
+OBJECT_SENSORS: tuple[str, ...] = ("camera", "lidar")
+#: Columns of the reference carried onto each judged row.
+_REFERENCE = ["frame", "box", "track_id", "role", "distance_m", "closing_speed_mps",
+              "ttc_ref_s", "ttc_ref_sd_s", "judgeable", "bearing_deg"]  # fmt: skip
+
+
+def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
+    """One row per matched box pair of ``rows`` (``run_id``, ``frame``, ``prev_box``,
+    ``curr_box``, ``box_w``, ``ttc_camera``, ``ttc_lidar``) whose current box has a reference
+    row: the reference's columns (``ref_track_id``, ``role``, ``distance_m``, ``ttc_ref_s``,
+    ``judgeable``, ``bearing_deg``), ``box_match_ok``, ``ttc_bin`` (the object ranges
+    :data:`ttc.evaluation.ttc_bins.OBJECT_TTC_BINS`), and per sensor ``{s}_rel_err`` (NaN
+    unless judgeable and valid) and ``{s}_invalid``."""
+    pairs = rows[(rows["prev_box"] >= 0) & (rows["curr_box"] >= 0)]
+    ref = reference[[c for c in _REFERENCE if c in reference]].rename(
+        columns={"box": "curr_box", "track_id": "ref_track_id"}
+    )
+    out = pairs.merge(ref, on=["frame", "curr_box"], how="inner", validate="many_to_one")
+    before = reference.set_index(["track_id", "frame"])["box"]
+    key = pd.MultiIndex.from_arrays([out["ref_track_id"], out["prev_frame"]])
+    out["box_match_ok"] = before.reindex(key).to_numpy() == out["prev_box"].to_numpy()
+    out["ttc_bin"] = ttc_bin(out["ttc_ref_s"], OBJECT_TTC_BIN_EDGES_S, OBJECT_TTC_BINS)
+    judged = out["judgeable"].astype(bool) & (out["ttc_bin"] != "")
+    for s in OBJECT_SENSORS:
+        ttc = out[f"ttc_{s}"].to_numpy(dtype=float)
+        invalid = ~(np.isfinite(ttc) & (ttc > 0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = np.abs(ttc - out["ttc_ref_s"].to_numpy(dtype=float)) / out["ttc_ref_s"]
+        out[f"{s}_invalid"] = invalid
+        out[f"{s}_rel_err"] = np.where(judged & ~invalid, rel, np.nan)
+    out["judged"] = judged
+    return out
+
+
+def object_metrics(judged: pd.DataFrame, by: list[str]) -> pd.DataFrame:
+    """Per group of ``by`` (e.g. ``["run_id", "role", "ttc_bin"]``) over the judged pairs of
+    :func:`judge_objects`: ``n_pairs``, ``n_tracks`` and per sensor ``{s}_medae_rel`` (median
+    relative error of the valid estimates) and ``{s}_invalid_rate`` (0–1)."""
+    t = judged[judged["judged"]]
+    g = t.groupby(by, observed=True)
+    out = pd.DataFrame({"n_pairs": g.size(), "n_tracks": g["ref_track_id"].nunique()})
+    for s in OBJECT_SENSORS:
+        out[f"{s}_medae_rel"] = g[f"{s}_rel_err"].median()
+        out[f"{s}_invalid_rate"] = g[f"{s}_invalid"].mean()
+    return out.reset_index()
+
+
+def ranking_agreement(a: pd.Series, b: pd.Series) -> float:
+    """Kendall's τ between two scores of the same settings (indexed by setting; lower is
+    better), over the settings both score; NaN with fewer than three."""
+    both = pd.concat([a, b], axis=1, join="inner").dropna()
+    if len(both) < 3:
+        return float("nan")
+    return float(kendalltau(both.iloc[:, 0], both.iloc[:, 1]).statistic)
+
+
+#: Edges of the breakdown tables (:func:`breakdown`): distance (m), box width (px), bearing
+#: (degrees off the forward axis, absolute).
+BREAKDOWN_EDGES: dict[str, tuple[float, ...]] = {
+    "distance_m": (0.0, 5.0, 10.0, 20.0, 40.0, np.inf),
+    "box_w": (0.0, 25.0, 50.0, 100.0, 200.0, np.inf),
+    "bearing_deg": (0.0, 5.0, 10.0, 20.0, 45.0),
+}
+
+
+def breakdown(judged: pd.DataFrame, sensor: str = "camera") -> pd.DataFrame:
+    """Where an estimate breaks down: per quantity (``distance_m``, ``box_w``,
+    ``bearing_deg``, ``ttc_bin``) and range, ``n_pairs``, the median relative error and the
+    invalid rate of ``sensor`` over the judged pairs of every run."""
+    t = judged[judged["judged"]].copy()
+    t["bearing_deg"] = t["bearing_deg"].abs()
+    parts = []
+    for quantity, edges in BREAKDOWN_EDGES.items():
+        bins = pd.cut(t[quantity], list(edges), right=False)
+        parts.append(_summary(t, bins.astype(str), quantity))
+    parts.append(_summary(t, t["ttc_bin"], "ttc_bin"))
+    return pd.concat(parts, ignore_index=True)
+
+
+def _summary(t: pd.DataFrame, key: pd.Series, quantity: str, sensor: str = "camera"):
+    g = t.groupby(key, sort=False)
+    out = pd.DataFrame({"n_pairs": g.size(), "medae_rel": g[f"{sensor}_rel_err"].median(),
+                        "invalid_rate": g[f"{sensor}_invalid"].mean()})  # fmt: skip
+    out.index.name = "range"
+    return out.reset_index().assign(quantity=quantity)[
+        ["quantity", "range", "n_pairs", "medae_rel", "invalid_rate"]
+    ]
