@@ -1,0 +1,224 @@
+"""A KITTI-raw drive's GPS/IMU packets (``oxts/``) and the ego's forward speed over a frame pair.
+
+Layout, beside the drive's ``image_02/`` and ``velodyne_points/``::
+
+    oxts/dataformat.txt          one line per column: ``name: meaning (unit)``; 30 columns
+    oxts/timestamps.txt          one ``YYYY-MM-DD HH:MM:SS.fffffffff`` line per packet
+    oxts/data/NNNNNNNNNN.txt     packet NNNNNNNNNN: one line of space-separated numbers
+
+The forward speed is the column named :data:`FORWARD_SPEED` (``vf``, m/s, parallel to the
+earth's surface) in ``dataformat.txt``: its position is read from that file, not assumed
+(KITTI's file lists 30 names, ``vf`` the 9th). A packet's time is its line of
+``timestamps.txt``, matched to the frames' times (:func:`ttc.io.frames.frame_clock_ns`) on the
+same clock; packets are not assumed to be one per frame.
+
+**Data gaps are per packet**: a missing, blank or malformed packet file (not one number per
+column, a non-numeric value, a non-finite ``vf``) or a blank line of ``timestamps.txt`` makes
+that packet's speed unknown, and every pair whose interval needs it NaN; the other pairs keep
+theirs. A **whole file** that cannot serve (``timestamps.txt`` or ``dataformat.txt`` missing
+or unreadable, a malformed or non-increasing time, no ``vf`` column) raises
+:class:`ttc.io.frame_errors.FrameDataError` naming the file (and line).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ttc.io.frame_errors import FrameDataError
+from ttc.io.timestamps import MISSING_NS, read_times_ns
+
+OXTS_DIR = Path("oxts")
+DATA_DIR = OXTS_DIR / "data"
+TIMESTAMPS = OXTS_DIR / "timestamps.txt"
+DATAFORMAT = OXTS_DIR / "dataformat.txt"
+#: The ``dataformat.txt`` name of the forward speed (m/s).
+FORWARD_SPEED = "vf"
+#: How far (s) a frame's time may lie before the first packet or after the last and still
+#: take that packet's speed: half a 10 Hz period. KITTI's synced drives pair each frame with
+#: its nearest packet (drive 0009's frame 0 is 12 ms before its first packet); further out
+#: the speed is unknown (NaN).
+EDGE_TOLERANCE_S = 0.05
+
+
+def has_oxts(sequence_dir: Path | str) -> bool:
+    """True when the recording folder holds an ``oxts/`` folder."""
+    return (Path(sequence_dir) / OXTS_DIR).is_dir()
+
+
+def packet_path(sequence_dir: Path | str, packet: int) -> Path:
+    """The file of packet ``packet`` (10-digit zero-padded name)."""
+    return Path(sequence_dir) / DATA_DIR / f"{packet:010d}.txt"
+
+
+def column_names(sequence_dir: Path | str) -> list[str]:
+    """The packets' column names in order, from ``oxts/dataformat.txt`` (the text before the
+    ``:`` of each non-blank line). Raises :class:`FrameDataError` naming the file (and line)
+    when it is missing, unreadable, empty or has a line without ``name:``."""
+    path = Path(sequence_dir) / DATAFORMAT
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        raise FrameDataError(path, "oxts column names not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FrameDataError(path, f"unreadable oxts data format ({exc})") from None
+    names = []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        name, colon, _ = line.partition(":")
+        if not colon or not name.strip() or len(name.split()) != 1:
+            raise FrameDataError(path, f"line {number}: expected 'name: meaning', got {line!r}")
+        names.append(name.strip())
+    if not names:
+        raise FrameDataError(path, "no column names")
+    return names
+
+
+def forward_speed_column(sequence_dir: Path | str) -> tuple[int, int]:
+    """(index of :data:`FORWARD_SPEED` counting from 0, number of columns) of the packets;
+    :class:`FrameDataError` naming ``dataformat.txt`` when it has no such column."""
+    names = column_names(sequence_dir)
+    if FORWARD_SPEED not in names:
+        raise FrameDataError(
+            Path(sequence_dir) / DATAFORMAT,
+            f"no column {FORWARD_SPEED!r} (forward speed) among {len(names)} names",
+        )
+    return names.index(FORWARD_SPEED), len(names)
+
+
+def read_packet_times_ns(sequence_dir: Path | str) -> np.ndarray:
+    """Nanoseconds since 1970 (int64, one per packet) of ``oxts/timestamps.txt``; a blank
+    line (a packet without a time) is :data:`ttc.io.timestamps.MISSING_NS`. Raises
+    :class:`FrameDataError` naming the file (and line) when it is missing or unreadable."""
+    path = Path(sequence_dir) / TIMESTAMPS
+    if not path.is_file():
+        raise FrameDataError(path, "oxts timestamps not found (oxts/ has no timestamps.txt)")
+    return read_times_ns(path)[0]
+
+
+def read_packet_value(path: Path, column: int, n_columns: int) -> float:
+    """Value of column ``column`` of one packet file; NaN when the file is missing or
+    unreadable, blank, not ``n_columns`` numbers, or the value is not finite."""
+    try:
+        words = path.read_text().split()
+        if len(words) != n_columns:
+            return np.nan
+        value = float(words[column])
+    except (OSError, UnicodeDecodeError, ValueError):
+        return np.nan
+    return value if np.isfinite(value) else np.nan
+
+
+def packet_seconds(packet_ns: np.ndarray, origin_ns: int) -> np.ndarray:
+    """Seconds after ``origin_ns`` of each packet (float, one per packet). A packet with a
+    blank time line lies between its neighbours: it is given the time halfway on the index
+    line between the known times around it (its speed is unknown anyway); NaN before the
+    first known time and after the last."""
+    present = packet_ns != MISSING_NS
+    if not present.any():
+        return np.full(len(packet_ns), np.nan)
+    known = np.flatnonzero(present)
+    seconds = (packet_ns[known] - origin_ns) / 1e9
+    out = np.interp(np.arange(len(packet_ns)), known, seconds)
+    out[: known[0]] = np.nan
+    out[known[-1] + 1 :] = np.nan
+    return out
+
+
+def bracket(times: np.ndarray, start: float, end: float) -> range | None:
+    """The packets a mean over ``[start, end]`` (s) uses: from the last packet at or before
+    ``start`` to the first at or after ``end`` (``times``: increasing packet seconds, NaN
+    ends dropped before); the first/last packet when ``start``/``end`` lies within
+    :data:`EDGE_TOLERANCE_S` outside them. None when the interval is empty or reaches
+    further outside the packets."""
+    if not (np.isfinite(start) and np.isfinite(end) and start < end and len(times)):
+        return None
+    if start < times[0] - EDGE_TOLERANCE_S or end > times[-1] + EDGE_TOLERANCE_S:
+        return None
+    lo = max(int(np.searchsorted(times, start, side="right")) - 1, 0)
+    hi = min(int(np.searchsorted(times, end, side="left")), len(times) - 1)
+    return range(lo, hi + 1)
+
+
+def mean_speed(times: np.ndarray, speeds: np.ndarray, start: float, end: float) -> float:
+    """Mean speed (m/s) over ``[start, end]`` (s): the integral of the speed, linear between
+    packets (``times`` s, ``speeds`` m/s, the packets :func:`bracket` names) and held at the
+    first/last packet's value outside them, divided by ``end - start``. NaN when
+    :func:`bracket` finds no packets or any of them has an unknown (NaN) speed."""
+    span = bracket(times, start, end)
+    if span is None or np.isnan(speeds[span.start : span.stop]).any():
+        return np.nan
+    t, v = times[span.start : span.stop], speeds[span.start : span.stop]
+    knots = np.concatenate([[start], t[(t > start) & (t < end)], [end]])
+    return float(np.trapezoid(np.interp(knots, t, v), knots) / (end - start))
+
+
+def packet_clock(sequence_dir: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(packet seconds after the first known packet time, their packet numbers, whether each
+    has its own time line, that origin in ns since 1970) of the packets that have a place on
+    the clock (:func:`packet_seconds`: all but blank lines before the first time or after
+    the last)."""
+    packet_ns = read_packet_times_ns(sequence_dir)
+    origin = int(packet_ns[packet_ns != MISSING_NS][0])
+    seconds = packet_seconds(packet_ns, origin)
+    numbers = np.flatnonzero(np.isfinite(seconds))
+    return seconds[numbers], numbers, packet_ns[numbers] != MISSING_NS, origin
+
+
+def frame_seconds(frame_ns: np.ndarray, origin_ns: int) -> np.ndarray:
+    """Seconds after ``origin_ns`` of each frame (NaN for a frame without a time)."""
+    present = frame_ns != MISSING_NS
+    return np.where(present, (np.where(present, frame_ns, origin_ns) - origin_ns) / 1e9, np.nan)
+
+
+def needed_packets(
+    times: np.ndarray, seconds: np.ndarray, prev: np.ndarray, curr: np.ndarray
+) -> list[int]:
+    """Positions in ``times`` of every packet the pairs' means use (:func:`bracket`); a pair
+    with a frame beyond ``seconds`` (the frames' times, s) needs none."""
+    out: set[int] = set()
+    for p, c in zip(prev, curr, strict=True):
+        if max(p, c) < len(seconds) and (span := bracket(times, seconds[p], seconds[c])):
+            out.update(span)
+    return sorted(out)
+
+
+def pair_speeds(
+    sequence_dir: Path | str, frame_ns: np.ndarray, prev: np.ndarray, curr: np.ndarray
+) -> np.ndarray:
+    """Mean forward speed (m/s, float, one per pair) over each frame pair's interval, from
+    the drive's ``oxts/`` (:func:`mean_speed` of ``vf``): ``prev``/``curr`` frame indices,
+    ``frame_ns`` the frames' times (ns since 1970, :func:`ttc.io.frames.frame_clock_ns`).
+    NaN for a pair with a frame without a time, outside the packets' times, or needing a
+    packet whose speed is unknown. Only the packet files the pairs need are read."""
+    column, n_columns = forward_speed_column(sequence_dir)
+    times, numbers, timed, origin = packet_clock(sequence_dir)
+    seconds = frame_seconds(frame_ns, origin)
+    speeds = np.full(len(times), np.nan)
+    for k in needed_packets(times, seconds, prev, curr):
+        if timed[k]:
+            speeds[k] = read_packet_value(packet_path(sequence_dir, numbers[k]), column, n_columns)
+    known = lambda i: seconds[i] if i < len(seconds) else np.nan  # noqa: E731
+    return np.array(
+        [mean_speed(times, speeds, known(p), known(c)) for p, c in zip(prev, curr, strict=True)],
+        dtype=float,
+    )
+
+
+def input_files(sequence_dir: Path | str, frame_ns: np.ndarray | None, indices: list[int]):
+    """The ``oxts/`` files a run over frames ``indices`` reads (some may not exist):
+    ``timestamps.txt``, ``dataformat.txt`` and the packet files between the first and the
+    last frame's times (:func:`needed_packets`); the first two alone when the frames or the
+    packets have no readable times (the run then fails on them or has no ego speed)."""
+    fixed = [Path(sequence_dir) / TIMESTAMPS, Path(sequence_dir) / DATAFORMAT]
+    if frame_ns is None or not indices or not has_oxts(sequence_dir):
+        return fixed
+    try:
+        times, numbers, _, origin = packet_clock(sequence_dir)
+    except FrameDataError:
+        return fixed
+    ends = np.array([indices[0]]), np.array([indices[-1]])
+    used = needed_packets(times, frame_seconds(frame_ns, origin), *ends)
+    return fixed + [packet_path(sequence_dir, numbers[k]) for k in used]
