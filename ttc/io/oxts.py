@@ -222,3 +222,19 @@ def input_files(sequence_dir: Path | str, frame_ns: np.ndarray | None, indices: 
     ends = np.array([indices[0]]), np.array([indices[-1]])
     used = needed_packets(times, frame_seconds(frame_ns, origin), *ends)
     return fixed + [packet_path(sequence_dir, numbers[k]) for k in used]
+
+
+def layout_problems(sequence_dir: Path | str) -> list[str]:
+    """What is wrong with a drive's ``oxts/`` as a whole, in words (each naming the file):
+    ``timestamps.txt`` and ``dataformat.txt`` present and readable, ``vf`` among the columns.
+    Nothing without ``oxts/`` (its pairs' ego speed is NaN) and for a bad packet file (that
+    packet's pairs' speed is NaN)."""
+    if not has_oxts(sequence_dir):
+        return []
+    problems = []
+    for check in (read_packet_times_ns, forward_speed_column):
+        try:
+            check(sequence_dir)
+        except FrameDataError as exc:
+            problems.append(str(exc))
+    return problems
