@@ -26,9 +26,23 @@ EGO_SPEED = "ego_speed_mps"
 def pair_ego_speeds(
     sequence_dir: Path | str, frame_ns: np.ndarray | None, pairs: pd.DataFrame
 ) -> np.ndarray:
-    """Ego speed (m/s, float, one per row of ``pairs``: ``prev_frame``, ``frame``) from the
-    recording's poses or oxts (module docstring); ``frame_ns`` the frames' times (ns since
-    1970, :func:`ttc.io.frames.frame_clock_ns`; None: no oxts speed). NaN where unknown."""
+    """Ego speed of each frame pair from the recording's poses or oxts (module docstring).
+
+    Parameters
+    ----------
+    sequence_dir
+        The recording folder.
+    frame_ns
+        Every frame's time (F,), int64 ns since 1970 (:func:`ttc.io.frames.frame_clock_ns`);
+        None: the recording has no frame timestamps (then no oxts speed).
+    pairs
+        Columns ``prev_frame`` and ``frame`` (P rows).
+
+    Returns
+    -------
+    numpy.ndarray
+        (P,) float, m/s; NaN where unknown.
+    """
     speeds = kitti_odometry.pair_ego_speeds(sequence_dir, pairs)
     if speeds is not None:
         return speeds

@@ -10,7 +10,10 @@ The forward speed is the column named :data:`FORWARD_SPEED` (``vf``, m/s, parall
 earth's surface) in ``dataformat.txt``: its position is read from that file, not assumed
 (KITTI's file lists 30 names, ``vf`` the 9th). A packet's time is its line of
 ``timestamps.txt``, matched to the frames' times (:func:`ttc.io.frames.frame_clock_ns`) on the
-same clock; packets are not assumed to be one per frame.
+same clock; packets are not assumed to be one per frame. A pair's speed is the **integral**
+of ``vf`` over the pair's interval divided by its length (``vf`` linear between packets:
+:func:`mean_speed`), not the mean of the speeds interpolated at its two ends; the two agree
+when no packet lies inside the interval.
 
 **Data gaps are per packet**: a missing, blank or malformed packet file (not one number per
 column, a non-numeric value, a non-finite ``vf``) or a blank line of ``timestamps.txt`` makes
@@ -99,8 +102,9 @@ def read_packet_times_ns(sequence_dir: Path | str) -> np.ndarray:
 
 
 def read_packet_value(path: Path, column: int, n_columns: int) -> float:
-    """Value of column ``column`` of one packet file; NaN when the file is missing or
-    unreadable, blank, not ``n_columns`` numbers, or the value is not finite."""
+    """Value of column ``column`` (counting from 0; in the column's unit) of one packet
+    file of ``n_columns`` numbers; NaN when the file is missing or unreadable, blank, not
+    ``n_columns`` numbers, or the value is not finite."""
     try:
         words = path.read_text().split()
         if len(words) != n_columns:
@@ -117,8 +121,6 @@ def packet_seconds(packet_ns: np.ndarray, origin_ns: int) -> np.ndarray:
     line between the known times around it (its speed is unknown anyway); NaN before the
     first known time and after the last."""
     present = packet_ns != MISSING_NS
-    if not present.any():
-        return np.full(len(packet_ns), np.nan)
     known = np.flatnonzero(present)
     seconds = (packet_ns[known] - origin_ns) / 1e9
     out = np.interp(np.arange(len(packet_ns)), known, seconds)
@@ -128,11 +130,23 @@ def packet_seconds(packet_ns: np.ndarray, origin_ns: int) -> np.ndarray:
 
 
 def bracket(times: np.ndarray, start: float, end: float) -> range | None:
-    """The packets a mean over ``[start, end]`` (s) uses: from the last packet at or before
-    ``start`` to the first at or after ``end`` (``times``: increasing packet seconds, NaN
-    ends dropped before); the first/last packet when ``start``/``end`` lies within
-    :data:`EDGE_TOLERANCE_S` outside them. None when the interval is empty or reaches
-    further outside the packets."""
+    """The packets a mean over ``[start, end]`` uses.
+
+    Parameters
+    ----------
+    times
+        Packet times (K,), s, strictly increasing and finite.
+    start, end
+        The interval's ends, s on the same clock.
+
+    Returns
+    -------
+    range or None
+        Positions in ``times`` from the last packet at or before ``start`` to the first at or
+        after ``end``; the first (last) packet when ``start`` (``end``) lies before (after)
+        all packets by at most :data:`EDGE_TOLERANCE_S`. None when an end is NaN, the
+        interval is empty, or it reaches further outside the packets.
+    """
     if not (np.isfinite(start) and np.isfinite(end) and start < end and len(times)):
         return None
     if start < times[0] - EDGE_TOLERANCE_S or end > times[-1] + EDGE_TOLERANCE_S:
@@ -143,10 +157,25 @@ def bracket(times: np.ndarray, start: float, end: float) -> range | None:
 
 
 def mean_speed(times: np.ndarray, speeds: np.ndarray, start: float, end: float) -> float:
-    """Mean speed (m/s) over ``[start, end]`` (s): the integral of the speed, linear between
-    packets (``times`` s, ``speeds`` m/s, the packets :func:`bracket` names) and held at the
-    first/last packet's value outside them, divided by ``end - start``. NaN when
-    :func:`bracket` finds no packets or any of them has an unknown (NaN) speed."""
+    """Mean speed over ``[start, end]``: the speed integrated over the interval, divided by
+    its length (not the mean of the two ends' speeds: packets inside count too).
+
+    Parameters
+    ----------
+    times
+        Packet times (K,), s, strictly increasing and finite.
+    speeds
+        Packet speeds (K,), m/s; NaN: unknown. The speed is linear between packets and held
+        at the first (last) packet's value before (after) them.
+    start, end
+        The interval's ends, s on the clock of ``times``.
+
+    Returns
+    -------
+    float
+        The mean speed, m/s; NaN when :func:`bracket` finds no packets or any packet it
+        names has an unknown speed.
+    """
     span = bracket(times, start, end)
     if span is None or np.isnan(speeds[span.start : span.stop]).any():
         return np.nan
@@ -188,11 +217,31 @@ def needed_packets(
 def pair_speeds(
     sequence_dir: Path | str, frame_ns: np.ndarray, prev: np.ndarray, curr: np.ndarray
 ) -> np.ndarray:
-    """Mean forward speed (m/s, float, one per pair) over each frame pair's interval, from
-    the drive's ``oxts/`` (:func:`mean_speed` of ``vf``): ``prev``/``curr`` frame indices,
-    ``frame_ns`` the frames' times (ns since 1970, :func:`ttc.io.frames.frame_clock_ns`).
-    NaN for a pair with a frame without a time, outside the packets' times, or needing a
-    packet whose speed is unknown. Only the packet files the pairs need are read."""
+    """Mean forward speed over each frame pair's interval, from the drive's ``oxts/``
+    (:func:`mean_speed` of ``vf``). Only the packet files the pairs need are read.
+
+    Parameters
+    ----------
+    sequence_dir
+        The drive folder (holding ``oxts/``).
+    frame_ns
+        Every frame's time (F,), int64 ns since 1970 (:func:`ttc.io.frames.frame_clock_ns`;
+        ``MISSING_NS``: the frame has none).
+    prev, curr
+        Frame indices (P,) of each pair's previous and current frame.
+
+    Returns
+    -------
+    numpy.ndarray
+        (P,) float, m/s; NaN for a pair with a frame without a time, outside the packets'
+        times (beyond :data:`EDGE_TOLERANCE_S`), or needing a packet whose speed is unknown.
+
+    Raises
+    ------
+    FrameDataError
+        Naming ``oxts/timestamps.txt`` or ``oxts/dataformat.txt`` (and the line) when the
+        whole file cannot serve (module docstring).
+    """
     column, n_columns = forward_speed_column(sequence_dir)
     times, numbers, timed, origin = packet_clock(sequence_dir)
     seconds = frame_seconds(frame_ns, origin)
