@@ -29,6 +29,7 @@ from ttc import reasons
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
 from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM
+from ttc.io.ego_motion import EGO_SPEED
 from ttc.io.frames import IMAGE_DIR, LIDAR_DIR, read_frame_times
 
 DATE = "2011_09_26"
@@ -87,6 +88,8 @@ def test_real_drive_0009_runs_frames_0_to_10(drive_0009: Path, data_dir: Path, t
     times = read_frame_times(drive_0009)
     expected = rows["frame"].map(lambda k: round(times[k] - times[k - 1], 9))
     np.testing.assert_array_equal(rows["dt"], expected)
+    speeds = rows.groupby("frame")[EGO_SPEED].agg(["min", "max"])  # the oxts vf: ≈ 10.7 m/s
+    assert (speeds["min"] == speeds["max"]).all() and speeds["min"].between(9.0, 12.0).all()
 
 
 def gapped_copy(drive_0009: Path, root: Path, blank: int) -> Path:

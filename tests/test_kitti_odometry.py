@@ -25,8 +25,8 @@ from ttc.engine.runner import run_setting
 from ttc.evaluation.lead_distance import rear_distance
 from ttc.features.objects import ObjectDetectorParams, detect_objects
 from ttc.io.calibration import load_calibration
+from ttc.io.ego_motion import EGO_SPEED
 from ttc.io.frames import FrameDataError, load_frame, read_frame_times
-from ttc.io.kitti_odometry import EGO_SPEED
 from ttc.steps.box_matching import points_in_rois
 from ttc.steps.lidar import project_to_image
 

@@ -9,6 +9,8 @@ Two layouts, one ``dataset.sequence`` (a folder under ``dataset.root``) for both
       <root>/kitti_raw/<date>/calib_cam_to_cam.txt, calib_velo_to_cam.txt
       <root>/kitti_raw/<date>/<date>_drive_<drive>_sync/image_02/{data/*.png, timestamps.txt}
       <root>/kitti_raw/<date>/<date>_drive_<drive>_sync/velodyne_points/{data/*.bin, timestamps.txt}
+      <root>/kitti_raw/<date>/<date>_drive_<drive>_sync/oxts/{data/*.txt, timestamps.txt,
+                                                             dataformat.txt}  (optional)
 
   ``sequence`` is the drive folder (:func:`raw_sequence`, the ``kitti_raw_sequence`` resolver);
   :func:`ttc.io.calibration.calibration_dir` finds the calibration one folder up, and
@@ -31,7 +33,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from ttc.io import kitti_odometry
+from ttc.io import kitti_odometry, oxts
 from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM, calibration_dir
 from ttc.io.frames import FrameDataError, read_frame_times, recording_frames
 
@@ -137,7 +139,8 @@ def dataset_identity(dataset: dict[str, Any], sequence_dir: Path) -> dict[str, A
 def layout_problems(date: str, sequence_dir: Path) -> list[str]:
     """What is wrong with a KITTI-raw drive (``date`` set) beyond its frames, in words: it
     must ship its real timestamps, readable and agreeing (:func:`ttc.io.frames.read_frame_times`
-    names the file and line), and its date folder the calibration. Nothing for a
+    names the file and line), its ``oxts/``, when it has one, readable times and column names
+    (:func:`ttc.io.oxts.layout_problems`), and its date folder the calibration. Nothing for a
     Udacity-layout dataset (no ``date``), which runs at the nominal 10 Hz without them. A
     KITTI-odometry sequence: :func:`ttc.io.kitti_odometry.layout_problems` (its ``calib.txt``
     and ``times.txt``)."""
@@ -154,6 +157,7 @@ def layout_problems(date: str, sequence_dir: Path) -> list[str]:
             )
     except FrameDataError as exc:
         problems.append(str(exc))
+    problems += oxts.layout_problems(sequence_dir)
     folder = calibration_dir(sequence_dir)  # where the run will read both files
     if not (folder / CAM_TO_CAM).is_file():  # in neither: name where KITTI raw keeps them
         folder = sequence_dir.parent

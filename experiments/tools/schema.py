@@ -19,6 +19,12 @@ FRAME_COLUMNS: list[tuple[str, str, str, str]] = [
     ("prev_frame", "int", "", "index of the previous frame"),
     ("frame", "int", "", "index of the current frame"),
     ("dt", "float", "s", "time between the two frames"),
+    (
+        "ego_speed_mps",
+        "float",
+        "m/s",
+        "ego's mean speed over the pair: oxts vf (KITTI raw), poses (odometry); NaN: neither",
+    ),
     ("scan_points_prev", "int", "points", "points in the previous scan"),
     ("scan_points_curr", "int", "points", "points in the current scan"),
     ("scan_short", "bool", "", "current scan below dataset.min_scan_points (truncated)"),

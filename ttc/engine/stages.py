@@ -40,13 +40,14 @@ from ttc.features.learned import extract, glue_candidates
 from ttc.features.learned_params import LEARNED_MATCHERS, learned_key
 from ttc.features.matching import knn_candidates, tracks_to_arrays, uses_descriptors
 from ttc.features.objects import detect_objects, model_identity
-from ttc.io import kitti_odometry
+from ttc.io import ego_motion, kitti_odometry
 from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM, calibration_dir
 from ttc.io.frames import (
     TIMESTAMP_FILES,
     TRUTH_FILE,
     FrameDataError,
     file_identity,
+    frame_clock_ns,
     frame_files,
     frame_pairs,
     missing_time_errors,
@@ -247,12 +248,19 @@ class FrameStages:
 
 def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     """Every input file a run of ``settings`` on ``frames`` reads (some may not exist): the
-    calibration and timestamps files, each frame's image and scan, the object model files."""
+    calibration and timestamps files, the ego speed's (:func:`ttc.io.ego_motion.input_files`:
+    the oxts packets of the frames' times), each frame's image and scan, the object model
+    files."""
     seq = Path(frames.sequence_dir)
     calib = calibration_dir(seq)
     files = [calib / CAM_TO_CAM, calib / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
     files += [seq / TRUTH_FILE] if (seq / TRUTH_FILE).is_file() else []
     files += kitti_odometry.layout_files(seq) if kitti_odometry.is_odometry_sequence(seq) else []
+    try:
+        clock = frame_clock_ns(seq)
+    except FrameDataError:  # the run fails on it, naming the file
+        clock = None
+    files += ego_motion.input_files(seq, clock, frames.indices)
     for index in frames.indices:
         ff = frame_files(seq, index)
         files += [ff.image, ff.scan]

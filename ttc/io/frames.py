@@ -20,9 +20,7 @@ record should not cost a frame, and the count makes the damage visible in the re
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,8 +28,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from ttc.io import kitti_odometry
+from ttc.io import ego_motion, kitti_odometry
 from ttc.io.frame_errors import FrameDataError
+from ttc.io.timestamps import MISSING_NS, check_clocks_agree, read_times_ns
 
 IMAGE_DIR = Path("image_02") / "data"
 LIDAR_DIR = Path("velodyne_points") / "data"
@@ -156,21 +155,6 @@ def check_frame_range(sequence_dir: Path | str, indices: list[int]) -> None:
 
 #: KITTI timestamp files beside the data folders, in order of preference (lidar first).
 TIMESTAMP_FILES = (LIDAR_DIR.parent / "timestamps.txt", IMAGE_DIR.parent / "timestamps.txt")
-_TIMESTAMP = re.compile(r"(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})(?:\.(\d{1,9}))?")
-
-
-def _timestamp_ns(line: str, path: Path, number: int) -> int:
-    """Nanoseconds since 1970 of one ``YYYY-MM-DD HH:MM:SS.fffffffff`` line (UTC assumed)."""
-    match = _TIMESTAMP.fullmatch(line.strip())
-    try:
-        if match is None:
-            raise ValueError("expected 'YYYY-MM-DD HH:MM:SS.fffffffff'")
-        year, month, day, hour, minute, second = (int(g) for g in match.groups()[:6])
-        when = dt.datetime(year, month, day, hour, minute, second, tzinfo=dt.UTC)
-    except ValueError as exc:
-        raise FrameDataError(path, f"line {number}: malformed timestamp {line!r} ({exc})") from None
-    fraction = (match.group(7) or "").ljust(9, "0")
-    return int(when.timestamp()) * 1_000_000_000 + int(fraction or 0)
 
 
 def timestamps_file(sequence_dir: Path | str) -> Path | None:
@@ -185,93 +169,44 @@ def timestamps_file(sequence_dir: Path | str) -> Path | None:
     return None
 
 
-#: Largest disagreement (s) between the camera's and the lidar's interval of one frame pair:
-#: a tenth of the 10 Hz period. One dt serves the lidar and the camera TTC of a pair, so
-#: clocks further apart would scale one of them silently by more than 10 %.
-CLOCK_TOLERANCE_S = 0.01
-#: A blank line of a ``timestamps.txt`` (a frame without this sensor's data), in nanoseconds.
-MISSING_NS = np.iinfo(np.int64).min
+def frame_clock_ns(sequence_dir: Path | str) -> np.ndarray | None:
+    """Nanoseconds since 1970 (int64) of every frame index, from the recording's KITTI
+    ``timestamps.txt`` (``velodyne_points/`` preferred over ``image_02/``); a blank line is
+    :data:`ttc.io.timestamps.MISSING_NS`; None when the recording has neither file (and for
+    a KITTI-odometry sequence, whose ``times.txt`` counts from its start).
 
-
-def _read_times_ns(path: Path) -> tuple[np.ndarray, list[str]]:
-    """Nanoseconds since 1970 of every line of one KITTI ``timestamps.txt`` and its lines;
-    a blank line (a frame KITTI published without this sensor's data, e.g. drive 0009's
-    frames 177–180) is :data:`MISSING_NS`.
-
-    Raises :class:`FrameDataError` naming the file and line for a malformed line and for
-    times that are not strictly increasing (blank lines skipped).
+    When both files exist, both are read and must agree (:func:`check_clocks_agree`: as many
+    lines, every pair's intervals within ``CLOCK_TOLERANCE_S``); the lidar's times are
+    returned (KITTI triggers the camera from the lidar's rotation). When one is missing, the
+    other alone is used. Raises :class:`FrameDataError` naming the file and line for a
+    malformed line, times that are not strictly increasing, and clocks that disagree.
     """
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FrameDataError(path, f"unreadable timestamps file ({exc})") from exc
-    while lines and not lines[-1].strip():
-        lines.pop()
-    if not lines:
-        raise FrameDataError(path, "no timestamps")
-    ns = [
-        _timestamp_ns(line, path, number) if line.strip() else MISSING_NS
-        for number, line in enumerate(lines, start=1)
-    ]
-    last = None  # index of the previous present line
-    for number in range(len(ns)):
-        if ns[number] == MISSING_NS:
-            continue
-        if last is not None and ns[number] <= ns[last]:
-            raise FrameDataError(
-                path,
-                f"line {number + 1}: time {lines[number].strip()!r} is not after line "
-                f"{last + 1}'s {lines[last].strip()!r} (times must strictly increase)",
-            )
-        last = number
-    return np.array(ns, dtype=np.int64), lines
-
-
-def check_clocks_agree(lidar: Path, lidar_ns: np.ndarray, camera: Path, camera_ns: np.ndarray):
-    """Raise :class:`FrameDataError` naming the camera file (and line) when it does not list
-    as many frames as the lidar file, or when a frame pair's camera interval differs from its
-    lidar interval by more than :data:`CLOCK_TOLERANCE_S`."""
-    if len(camera_ns) != len(lidar_ns):
-        raise FrameDataError(
-            camera, f"{len(camera_ns)} timestamps, but {lidar} has {len(lidar_ns)} (one per frame)"
-        )
-    gap = np.abs(np.diff(camera_ns) - np.diff(lidar_ns)) / 1e9
-    present = (camera_ns != MISSING_NS) & (lidar_ns != MISSING_NS)
-    bad = np.flatnonzero((gap > CLOCK_TOLERANCE_S) & present[1:] & present[:-1])
-    if bad.size:
-        k = int(bad[0]) + 1  # frame k: the pair (k - 1, k), line k + 1
-        raise FrameDataError(
-            camera,
-            f"line {k + 1}: the camera's interval of frames {k - 1}->{k} differs from the "
-            f"lidar's ({lidar}) by {gap[k - 1] * 1e3:.1f} ms (> {CLOCK_TOLERANCE_S * 1e3:.0f} ms)",
-        )
+    sequence_dir = Path(sequence_dir)
+    if kitti_odometry.is_odometry_sequence(sequence_dir):
+        return None
+    paths = [sequence_dir / name for name in TIMESTAMP_FILES if (sequence_dir / name).is_file()]
+    if not paths:
+        return None
+    clocks = [read_times_ns(path)[0] for path in paths]
+    if len(paths) == 2:
+        check_clocks_agree(paths[0], clocks[0], paths[1], clocks[1])
+    return clocks[0]
 
 
 def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
-    """Seconds of every frame index relative to frame 0, from the recording's KITTI
-    ``timestamps.txt`` (``velodyne_points/`` preferred over ``image_02/``); None when the
-    recording has neither file.
-
-    When both files exist, both are read and must agree (:func:`check_clocks_agree`: as many
-    lines, every pair's intervals within :data:`CLOCK_TOLERANCE_S`); the lidar's times are
-    returned (KITTI triggers the camera from the lidar's rotation). When one is missing, the
-    other alone is used. A blank line is a missing frame: its time is NaN (its pairs become
-    frame errors, :func:`missing_time_errors`), and the times count from the first frame that
-    has one. Raises :class:`FrameDataError` naming the file and line for a
-    malformed line, times that are not strictly increasing, and clocks that disagree.
-    Values are rounded to the nanosecond of the file. A KITTI-odometry sequence's times
-    come from its ``times.txt`` (:func:`ttc.io.kitti_odometry.read_times`).
+    """Seconds of every frame index relative to frame 0, from :func:`frame_clock_ns` (the
+    lidar's ``timestamps.txt``, checked against the camera's); None when the recording has
+    no timestamps file. A blank line is a missing frame: its time is NaN (its pairs become
+    frame errors, :func:`missing_time_errors`), and the times count from the first frame
+    that has one. Values are rounded to the nanosecond of the file. A KITTI-odometry
+    sequence's times come from its ``times.txt`` (:func:`ttc.io.kitti_odometry.read_times`).
     """
     sequence_dir = Path(sequence_dir)
     if kitti_odometry.is_odometry_sequence(sequence_dir):
         return kitti_odometry.read_times(sequence_dir)
-    paths = [sequence_dir / name for name in TIMESTAMP_FILES if (sequence_dir / name).is_file()]
-    if not paths:
+    ns = frame_clock_ns(sequence_dir)
+    if ns is None:
         return None
-    clocks = [_read_times_ns(path)[0] for path in paths]
-    if len(paths) == 2:
-        check_clocks_agree(paths[0], clocks[0], paths[1], clocks[1])
-    ns = clocks[0]
     present = ns != MISSING_NS
     origin = ns[np.argmax(present)]
     seconds = (np.where(present, ns, origin) - origin) / 1e9
@@ -379,13 +314,15 @@ def read_truth(sequence_dir: Path | str) -> pd.DataFrame | None:
 
 
 def with_truth(rows: pd.DataFrame, sequence_dir: Path | str) -> pd.DataFrame:
-    """``rows`` (one per frame pair × box pair) with the recording's :data:`TRUTH_COLUMNS` of
-    each row's pair (by ``frame``); unchanged when the recording has no truth table. A
-    KITTI-odometry sequence with poses gets its pairs' ego speed instead
-    (:func:`ttc.io.kitti_odometry.with_ego_speed`)."""
-    rows = kitti_odometry.with_ego_speed(rows, sequence_dir)
+    """``rows`` (one per frame pair × box pair) with the ego speed of each row's pair
+    (:func:`ttc.io.ego_motion.with_ego_speed`: column ``ego_speed_mps``, NaN without oxts or
+    poses) and the recording's :data:`TRUTH_COLUMNS` of each row's pair (by ``frame``) when it
+    has a truth table."""
+    if rows.empty:
+        return rows
+    rows = ego_motion.with_ego_speed(rows, sequence_dir, frame_clock_ns(sequence_dir))
     truth = read_truth(sequence_dir)
-    if truth is None or rows.empty:
+    if truth is None:
         return rows
     return rows.merge(truth, on="frame", how="left", validate="many_to_one")
 

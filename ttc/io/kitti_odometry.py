@@ -35,8 +35,6 @@ POSES_DIR = "poses"
 DIGITS = 6
 #: ``dataset.projection`` (the KITTI-raw names) -> the matrix of ``calib.txt`` it means.
 PROJECTIONS = {"P_rect_02": "P2", "P_rect_00": "P0"}
-#: The per-pair column :func:`with_ego_speed` adds (m/s).
-EGO_SPEED = "ego_speed"
 
 
 def is_odometry_sequence(sequence_dir: Path | str) -> bool:
@@ -182,16 +180,16 @@ def ego_speeds(positions: np.ndarray, times: np.ndarray, pairs: pd.DataFrame) ->
     return speed
 
 
-def with_ego_speed(rows: pd.DataFrame, sequence_dir: Path | str) -> pd.DataFrame:
-    """``rows`` (one or more per frame pair) with the :data:`EGO_SPEED` column (m/s) of each
-    row's pair, for an odometry sequence with ``poses/NN.txt`` and ``times.txt``; unchanged
-    otherwise (other layouts, no poses)."""
-    if rows.empty or not is_odometry_sequence(sequence_dir):
-        return rows
+def pair_ego_speeds(sequence_dir: Path | str, pairs: pd.DataFrame) -> np.ndarray | None:
+    """Ego speed (m/s, one per row of ``pairs``: ``prev_frame``, ``frame``) of an odometry
+    sequence from ``poses/NN.txt`` and ``times.txt`` (:func:`ego_speeds`); None for another
+    layout or without either file (:func:`ttc.io.ego_motion.with_ego_speed` makes it NaN)."""
+    if not is_odometry_sequence(sequence_dir):
+        return None
     positions, times = read_positions(sequence_dir), read_times(sequence_dir)
     if positions is None or times is None:
-        return rows
-    return rows.assign(**{EGO_SPEED: ego_speeds(positions, times, rows)})
+        return None
+    return ego_speeds(positions, times, pairs)
 
 
 def layout_files(sequence_dir: Path | str) -> list[Path]:
