@@ -21,6 +21,7 @@ from ttc.evaluation import reference as reference_module
 from ttc.evaluation.object_reference import object_reference
 from ttc.features.objects import coco_names
 from ttc.io.calibration import load_calibration
+from ttc.io.ego_motion import EGO_SPEED
 from ttc.io.frames import (
     file_identity,
     frame_files,
@@ -33,9 +34,6 @@ from ttc.io.frames import (
 from ttc.settings import FrameRange, Settings
 from ttc.steps.lidar import associate_lead
 from ttc.steps.object_lidar import associate_objects
-
-#: The per-pair ego speed column of the rows (m/s).
-EGO_SPEED = "ego_speed_mps"
 
 #: Bump to invalidate every cached reference (the key also holds the source of ttc/evaluation/lead_distance.py, lead_status.py and reference.py).
 REFERENCE_CACHE_VERSION = 1
