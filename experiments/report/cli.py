@@ -4,7 +4,6 @@ reference, FP.5 and FP.6 reports, with the seconds each step took."""
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -13,6 +12,7 @@ from typing import Any
 import matplotlib
 
 from experiments import store
+from experiments.data.first_run import fail
 from experiments.provenance import code_version
 from experiments.recordings import report_kind
 from experiments.report import (
@@ -34,6 +34,7 @@ from experiments.report.load import (
     reference_for,
 )
 from ttc import evaluation as ev
+from ttc.features.model_files import ModelFileError
 
 
 def write_sweep_metrics(data: SweepData, reference) -> list[Path]:
@@ -209,5 +210,5 @@ def main(argv: list[str] | None = None) -> None:
     try:
         build_report(args.sweep_dirs, args.out, args.data_dir, args.cache_dir,
                      not args.no_pictures, html=not args.no_html, real=args.real)  # fmt: skip
-    except store.StoreError as exc:  # a corrupt or inconsistent results file, named
-        sys.exit(f"report not written: {exc}")
+    except (store.StoreError, ModelFileError) as exc:  # a corrupt results file, a missing
+        fail(f"report not written: {exc}", exc)  # model file: named, one message

@@ -20,11 +20,13 @@ from experiments.config import (
     with_neutral_axes,
     with_neutral_options,
 )
+from experiments.data.first_run import ensure_model_files
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
+from ttc.features.model_files import uses_bundled_files
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
 
@@ -103,18 +105,25 @@ def setting_of_run(runs: pd.DataFrame, run_id: str, root: Path) -> tuple[Setting
 
 @dataclass
 class Context:
-    """What a report needs besides the sweep tables: data root, stage cache, pair details."""
+    """What a report needs besides the sweep tables: data root, stage cache, pair details
+    (``models_found``: the YOLOv3-tiny files were looked for, and downloaded if missing)."""
 
     root: Path
     cache: StageCache
     details: dict[tuple[str, int, int], PairDetail] = field(default_factory=dict)
     calls: int = 0
+    models_found: bool = False
 
     def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
-        """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised)."""
+        """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised); the first
+        one that needs the YOLOv3-tiny files finds them as the sweep did
+        (:func:`experiments.data.first_run.ensure_model_files`)."""
         key = (run_id, prev, curr)
         if key not in self.details:
             settings, frames = setting_of_run(runs, run_id, self.root)
+            if not self.models_found and uses_bundled_files(settings.objects):
+                ensure_model_files()
+                self.models_found = True
             self.details[key] = pair_detail(settings, frames, prev, curr, self.cache)
             self.calls += 1
         return self.details[key]

@@ -57,6 +57,7 @@ from typing import Any
 import pandas as pd
 
 from experiments import store
+from experiments.data.first_run import ensure_model_files
 from experiments.paths import base_dir, default_data_root
 from experiments.provenance import code_version, machine, package_versions
 from experiments.tools.floor import compute_floor, hydra_compose_seconds, steps_floor_ms
@@ -348,6 +349,7 @@ def main(argv: list[str] | None = None) -> None:
         )
         store.write_json_atomic(report, out)
 
+    ensure_model_files()  # the floor runs the detector in this process (and the sweeps inherit it)
     with tempfile.TemporaryDirectory(prefix="ttc-bench-") as tmp:
         workdir = args.workdir or Path(tmp)
         report = run_benchmark(grid, workdir, args.skip_nocache, parts, save)

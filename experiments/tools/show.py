@@ -39,14 +39,14 @@ from experiments.config import (
     register_configs,
     settings_from_config,
 )
-from experiments.data.first_run import ensure_data
+from experiments.data.first_run import ensure_data, fail
 from experiments.report.encode import save_png
 from experiments.run import check_data
 from ttc import draw
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
-from ttc.features.objects import coco_names
+from ttc.features.objects import ModelFileError, coco_names
 from ttc.io.calibration import load_calibration
 from ttc.io.frames import FrameDataError, frame_files, read_lidar_scan
 from ttc.rows import PairDetail
@@ -188,8 +188,8 @@ def main(cfg: DictConfig) -> None:
     check_data(cfg)
     try:
         paths = write_pictures(cfg)
-    except FrameDataError as exc:
-        sys.exit(f"cannot show frame {cfg.show.frame}: {exc}")
+    except (FrameDataError, ModelFileError) as exc:
+        fail(f"cannot show frame {cfg.show.frame}: {exc}", exc)
     for path in paths:
         print(path)
     if int(cfg.show.frame) - int(cfg.dataset.step) < 0:

