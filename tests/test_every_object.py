@@ -171,3 +171,47 @@ def test_the_lead_of_drive_0052_is_unchanged_against_the_committed_report() -> N
     assert (lead["track_id"] >= 0).all()
     non_lead = rows[~rows["is_lead"] & (rows["prev_box"] >= 0)]
     assert (non_lead["object_points"] > 0).any()  # other boxes now have their own points
+
+
+# --- the camera remedy and the all-object ranking: exact checks -------------------------
+
+
+def test_vertical_ratio_is_exact_on_a_side_surface_where_median_ratio_is_not() -> None:
+    """A car's side seen obliquely: points along it at depths 10–14 m, the ego 1 m closer in
+    the current frame. Vertical pairs (one depth) scale exactly with their depth; the pair
+    distances across depths do not scale like any one depth."""
+    from ttc.steps.camera_ttc import CameraTTCParams, camera_ttc, vertical_ratios
+
+    f, lateral = 700.0, -3.0
+    depth = np.repeat(np.arange(10.0, 14.01, 0.5), 2)  # two heights per depth
+    height = np.tile([-0.5, 0.5], len(depth) // 2)
+
+    def project(z):
+        return np.c_[600 - f * lateral / z, 200 - f * height / z]
+
+    prev, curr = project(depth + 1.0), project(depth)
+    truth = (depth + 1.0) / depth  # each point's own depth ratio: 1.071-1.1
+    ratios = vertical_ratios(prev, curr, 1.0)
+    assert len(ratios) >= len(depth) // 2  # at least the pair above one another at each depth
+    assert truth.min() - 1e-12 <= ratios.min() and ratios.max() <= truth.max() + 1e-12
+    vertical = camera_ttc(prev, curr, 0.1, CameraTTCParams(name="vertical_ratio", min_dist=1.0))
+    distance = camera_ttc(prev, curr, 0.1, CameraTTCParams(name="median_ratio", min_dist=1.0))
+    assert truth.min() <= vertical.ratio <= truth.max()
+    assert distance.ratio > truth.max()  # across depths, distances grow faster than any depth
+
+
+def test_the_all_object_ranking_takes_tracks_as_bootstrap_blocks() -> None:
+    """Two settings over three tracks: ``a`` better on every pair ranks first with an interval
+    [1, 1]; the score is the mean capped error (an invalid estimate 1)."""
+    from ttc.evaluation.object_errors import track_bootstrap_ranks
+
+    judged = pd.DataFrame({
+        "setting": ["a"] * 6 + ["b"] * 6,
+        "ref_track_id": [1, 1, 2, 2, 3, 3] * 2,
+        "camera_score": [0.1, 0.1, 0.2, 0.2, 0.0, 0.0, 1.0, 0.5, 0.3, 0.3, 0.2, 0.2],
+        "judged": True,
+    })  # fmt: skip
+    out = track_bootstrap_ranks(judged, n_boot=200)
+    assert out["setting"].tolist() == ["a", "b"]
+    assert out["score"].tolist() == pytest.approx([0.1, 2.5 / 6])
+    assert out.loc[0, ["rank", "rank_lo", "rank_hi"]].tolist() == [1, 1, 1]

@@ -147,6 +147,7 @@ def build_drives_report(
     start = time.perf_counter()
     references = drives_report.drive_references(data, ctx)
     written = write_sweep_metrics(data, references)
+    object_rankings: dict[str, Any] = {}
     for name, part in drives_report.split_by_recording(data).items():
         folder, reference = out / name, references[name]
         folder.mkdir(parents=True, exist_ok=True)
@@ -156,9 +157,10 @@ def build_drives_report(
         fp5_table = fp5.fp5_report(part, reference, ctx, folder, pictures)
         fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
         fp7_tables = fp7.fp7_report(part, reference, folder)
-        objects_report.recording_objects_report(part, ctx, folder)
+        object_rankings[name] = objects_report.recording_objects_report(part, ctx, folder)
         if html:
             html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables)
+    objects_report.cross_recording_objects(object_rankings, out)
     table = drives_report.drives_report(data, references, out) if not data.frames.empty else None
     finding = None
     if table is not None:

@@ -222,3 +222,33 @@ def plot_rank_intervals(ranking: pd.DataFrame, n: int = 30) -> plt.Figure:
     ax.set_title(f"{int(tied.sum())} of the top {len(top)} settings are tied for first", fontsize=9)
     ax.grid(axis="x", alpha=0.3)
     return fig
+
+
+def plot_objects(reference: pd.DataFrame, judged: pd.DataFrame, ranking: pd.DataFrame):
+    """Every object of a recording: each track's reference distance against time (top; m),
+    its reference TTC with the best all-object setting's camera TTC (dots) and lidar TTC
+    (crosses) (bottom; s, clipped at 30 s). ``reference``:
+    :func:`ttc.evaluation.object_reference.object_reference`; ``judged``:
+    :func:`ttc.evaluation.object_errors.judge_objects` with a ``setting`` column."""
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
+    t0 = reference["frame"].min()
+    best = ranking["setting"].iloc[0] if len(ranking) else None
+    mine = judged[judged["setting"] == best] if best is not None else judged.iloc[:0]
+    colours = plt.get_cmap("tab20")
+    tracks = reference.groupby("track_id")
+    for n, (tid, track) in enumerate(t for t in tracks if len(t[1]) >= 3):
+        colour = colours(n % 20)
+        top.plot(track["frame"] - t0, track["distance_m"], color=colour, lw=1.2)
+        ttc = track["ttc_ref_s"].where(np.isfinite(track["ttc_ref_s"]))
+        bottom.plot(track["frame"] - t0, ttc.clip(upper=30), color=colour, lw=1.2)
+        est = mine[mine["ref_track_id"] == tid]
+        bottom.scatter(est["frame"] - t0, est["ttc_camera"].clip(0, 30), s=10, color=colour)
+        bottom.scatter(est["frame"] - t0, est["ttc_lidar"].clip(0, 30), s=14, color=colour,
+                       marker="x")  # fmt: skip
+    top.set_ylabel("reference distance (m)")
+    bottom.set_ylabel("TTC (s, ≤ 30)")
+    bottom.set_xlabel("frame")
+    title = f"tracks with ≥ 3 boxes; dots: camera, crosses: lidar TTC of {best}" if best else ""
+    top.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig

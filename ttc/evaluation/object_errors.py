@@ -29,7 +29,9 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
     row: the reference's columns (``ref_track_id``, ``role``, ``distance_m``, ``ttc_ref_s``,
     ``judgeable``, ``bearing_deg``), ``box_match_ok``, ``ttc_bin`` (the object ranges
     :data:`ttc.evaluation.ttc_bins.OBJECT_TTC_BINS`), and per sensor ``{s}_rel_err`` (NaN
-    unless judgeable and valid) and ``{s}_invalid``."""
+    unless judgeable and valid), ``{s}_invalid`` and ``{s}_score`` (the relative error capped
+    at 1, an invalid estimate 1: bounded, so a setting invalid on half the pairs is not tied
+    with every other one at +inf; the all-object ranking takes its mean)."""
     pairs = rows[(rows["prev_box"] >= 0) & (rows["curr_box"] >= 0)]
     ref = reference[[c for c in _REFERENCE if c in reference]].rename(
         columns={"box": "curr_box", "track_id": "ref_track_id"}
@@ -47,6 +49,8 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
             rel = np.abs(ttc - out["ttc_ref_s"].to_numpy(dtype=float)) / out["ttc_ref_s"]
         out[f"{s}_invalid"] = invalid
         out[f"{s}_rel_err"] = np.where(judged & ~invalid, rel, np.nan)
+        capped = np.where(invalid, 1.0, np.minimum(rel, 1.0))
+        out[f"{s}_score"] = np.where(judged, capped, np.nan)
     out["judged"] = judged
     return out
 
@@ -54,13 +58,15 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
 def object_metrics(judged: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     """Per group of ``by`` (e.g. ``["run_id", "role", "ttc_bin"]``) over the judged pairs of
     :func:`judge_objects`: ``n_pairs``, ``n_tracks`` and per sensor ``{s}_medae_rel`` (median
-    relative error of the valid estimates) and ``{s}_invalid_rate`` (0–1)."""
+    relative error of the valid estimates), ``{s}_invalid_rate`` (0–1) and ``{s}_score`` (the
+    mean capped error, an invalid estimate 1: the ranking key, 0–1, lower is better)."""
     t = judged[judged["judged"]]
     g = t.groupby(by, observed=True)
     out = pd.DataFrame({"n_pairs": g.size(), "n_tracks": g["ref_track_id"].nunique()})
     for s in OBJECT_SENSORS:
         out[f"{s}_medae_rel"] = g[f"{s}_rel_err"].median()
         out[f"{s}_invalid_rate"] = g[f"{s}_invalid"].mean()
+        out[f"{s}_score"] = g[f"{s}_score"].mean()
     return out.reset_index()
 
 
@@ -104,3 +110,45 @@ def _summary(t: pd.DataFrame, key: pd.Series, quantity: str, sensor: str = "came
     return out.reset_index().assign(quantity=quantity)[
         ["quantity", "range", "n_pairs", "medae_rel", "invalid_rate"]
     ]
+
+
+#: Replicates, confidence level and seed of the all-object rank intervals.
+N_BOOT = 500
+CI = 0.9
+SEED = 0
+
+
+def track_bootstrap_ranks(
+    judged: pd.DataFrame, sensor: str = "camera", n_boot: int = N_BOOT, seed: int = SEED
+) -> pd.DataFrame:
+    """The all-object ranking of the settings (``setting`` column of :func:`judge_objects`'s
+    judged pairs) by the mean ``{sensor}_score``, with rank intervals from a bootstrap whose
+    blocks are tracks (``ref_track_id``): a replicate draws as many tracks as there are, with
+    replacement, and keeps every judged pair of each (errors along one track are correlated).
+    Columns: ``setting``, ``score``, ``rank`` (1: best), ``rank_lo``, ``rank_hi``
+    (:data:`CI` interval), ``n_pairs``."""
+    t = judged[judged["judged"]]
+    tracks = np.sort(t["ref_track_id"].unique())
+    settings = sorted(t["setting"].unique())
+    if not len(tracks) or not settings:
+        return pd.DataFrame(columns=["setting", "score", "rank", "rank_lo", "rank_hi", "n_pairs"])
+    rng = np.random.default_rng(seed)
+    counts = np.stack([np.bincount(rng.integers(0, len(tracks), len(tracks)),
+                                   minlength=len(tracks)) for _ in range(n_boot)])  # fmt: skip
+    scores = np.full((n_boot, len(settings)), np.inf)
+    point = np.full(len(settings), np.inf)
+    n_pairs = np.zeros(len(settings), dtype=np.int64)
+    for j, (_, mine) in enumerate(t.groupby("setting", sort=True)):
+        values = mine[f"{sensor}_score"].to_numpy(dtype=float)
+        weight = counts[:, np.searchsorted(tracks, mine["ref_track_id"].to_numpy())]
+        n_pairs[j] = len(values)
+        point[j] = values.mean()
+        total = weight.sum(axis=1)  # (n_boot,): pairs of this setting in each replicate
+        drawn = total > 0
+        scores[drawn, j] = (weight @ values)[drawn] / total[drawn]
+    ranks = pd.DataFrame(scores).rank(axis=1, method="min").to_numpy()
+    lo, hi = np.quantile(ranks, [(1 - CI) / 2, (1 + CI) / 2], axis=0)
+    out = pd.DataFrame({"setting": settings, "score": point, "n_pairs": n_pairs,
+                        "rank": pd.Series(point).rank(method="min").to_numpy(),
+                        "rank_lo": lo, "rank_hi": hi})  # fmt: skip
+    return out.sort_values(["rank", "setting"], ignore_index=True)

@@ -67,6 +67,7 @@ def mean_ratio(ratios: np.ndarray) -> float:
 CAMERA_ESTIMATORS: dict[str, Callable[[np.ndarray], float]] = {
     "median_ratio": median_ratio,
     "mean_ratio": mean_ratio,
+    "vertical_ratio": median_ratio,
 }
 #: FP.4 estimators of the scale from the correspondences themselves (not from pair ratios):
 #: (prev_xy, curr_xy, params) → (ratio, correspondences used); see :mod:`ttc.steps.similarity_fit`.
@@ -96,6 +97,28 @@ def distance_ratios(prev_xy: np.ndarray, curr_xy: np.ndarray, min_dist: float) -
     d_curr = pdist(curr_xy)
     usable = (d_curr >= min_dist) & (d_prev > MIN_PREV_DIST)
     return d_curr[usable] / d_prev[usable]
+
+
+def vertical_ratios(prev_xy: np.ndarray, curr_xy: np.ndarray, min_dist: float) -> np.ndarray:
+    """Ratios ``|Δv_curr| / |Δv_prev|`` of the vertical components over the mostly vertical
+    pairs i < j (``|Δu_curr| ≤ |Δv_curr|``) with ``|Δv_curr| ≥ min_dist`` (pixels).
+
+    A car seen obliquely shows its side: points along it lie at different depths, so their
+    horizontal separation does not scale like the distance of the car's nearest face, while
+    the vertical separation of two points above one another (at one depth) scales exactly
+    with that depth (the ``camera_ttc=vertical_ratio`` estimator, the median of these)."""
+    if len(curr_xy) < 2:
+        return np.empty(0)
+    du_curr = pdist(curr_xy[:, :1])
+    dv_prev, dv_curr = pdist(prev_xy[:, 1:2]), pdist(curr_xy[:, 1:2])
+    usable = (dv_curr >= min_dist) & (du_curr <= dv_curr) & (dv_prev > MIN_PREV_DIST)
+    return dv_curr[usable] / dv_prev[usable]
+
+
+#: The pair ratios each ratio statistic of :data:`CAMERA_ESTIMATORS` reduces.
+RATIO_SOURCES: dict[str, Callable[[np.ndarray, np.ndarray, float], np.ndarray]] = {
+    "vertical_ratio": vertical_ratios,
+}
 
 
 def ttc_from_ratio(ratio: float, dt: float) -> float:
@@ -130,7 +153,8 @@ def camera_ttc(
     if params.name in POINT_ESTIMATORS:
         r, n_used = POINT_ESTIMATORS[params.name](prev_xy, curr_xy, params)
     else:
-        ratios = distance_ratios(prev_xy, curr_xy, params.threshold(box_width))
+        pair_ratios = RATIO_SOURCES.get(params.name, distance_ratios)
+        ratios = pair_ratios(prev_xy, curr_xy, params.threshold(box_width))
         r, n_used = (
             (CAMERA_ESTIMATORS[params.name](ratios), len(ratios)) if len(ratios) else (nan, 0)
         )
