@@ -1,4 +1,5 @@
-"""Lidar association of a full scan (budget: well under 10 ms) and the pure-Python share.
+"""Lidar association of a full scan, the lead's and every object's (budget: 10 ms each), and
+the pure-Python share.
 
 The pure-Python share of a frame is everything the pipeline does besides the OpenCV calls:
 with every expensive stage in a warm cache, one frame pair costs the cache loads, the lidar
@@ -22,6 +23,7 @@ from ttc.io.calibration import load_calibration
 from ttc.io.frames import load_frame
 from ttc.settings import FrameRange, Settings
 from ttc.steps.lidar import LaneCropParams, associate_lead, crop_to_lane
+from ttc.steps.object_lidar import ObjectLidarParams, associate_objects, object_scan_mask
 
 
 @pytest.fixture(scope="module")
@@ -54,3 +56,29 @@ def test_bench_python_share_per_frame_pair(benchmark, kitti_dir: Path, tmp_path_
     assert rows.filter(like="cached_").to_numpy().all()
     benchmark.extra_info["pairs"] = 18
     benchmark.extra_info["ms_per_pair_median"] = 1e3 * benchmark.stats["median"] / 18
+
+
+@pytest.fixture(scope="module")
+def drive_0009_scan(data_dir: Path):
+    """Frame 0 of drive 0009 (6-9 parked cars in view): its scan, projection and boxes."""
+    seq = data_dir / "kitti_raw/2011_09_26/2011_09_26_drive_0009_sync"
+    frame = load_frame(seq, 0)
+    detections = detect_objects(frame.image, ObjectDetectorParams())
+    return frame.scan.points, load_calibration(seq).velo_to_image, detections.roi
+
+
+def test_bench_object_association_full_scan(benchmark, drive_0009_scan) -> None:
+    """Every box's own points from a full scan (the object range mask, one projection, the
+    nearest compact group of every frustum): budget 10 ms for all boxes of a scan."""
+    points, velo_to_image, rois = drive_0009_scan
+    assert len(rois) >= 6
+    params = ObjectLidarParams()
+
+    def associate():
+        near = points[object_scan_mask(points, params)]
+        return associate_objects(near, velo_to_image, rois, 0.10, params)
+
+    result = benchmark(associate)
+    assert (result.n_points > 0).sum() >= 6
+    benchmark.extra_info["boxes"] = len(rois)
+    assert benchmark.stats["median"] < 10e-3
