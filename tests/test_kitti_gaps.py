@@ -132,7 +132,9 @@ def test_the_no_lead_drive_has_its_own_option_with_the_same_run_ids() -> None:
     """``dataset=kitti_raw_0009`` (what ``+experiment=recordings`` sweeps) is the same
     recording, settings and run id as ``dataset=kitti_raw dataset.drive=0009``."""
     option = composed(["dataset=kitti_raw_0009", "detector=orb"])
-    spelled = composed(["dataset=kitti_raw", "dataset.drive=0009", "dataset.last=15", "detector=orb"])
+    spelled = composed(
+        ["dataset=kitti_raw", "dataset.drive=0009", "dataset.last=15", "detector=orb"]
+    )
     assert option.dataset.sequence.endswith("2011_09_26_drive_0009_sync")
     assert run_id(option) == run_id(spelled)
     assert run_id(option) != run_id(composed(["dataset=kitti_raw", "detector=orb"]))
