@@ -86,10 +86,11 @@ def pooled_runs(
     (:func:`ttc.evaluation.drive_rankings`, each run against its own recording's reference;
     no bootstrap intervals: the report's ``drives.md`` has them); ``run_id`` is the setting
     id shared by its runs on every recording."""
-    from experiments.recordings import drive_name, runs_drive_rankings  # noqa: PLC0415
+    from experiments.data.datasets import recording_id  # noqa: PLC0415
+    from experiments.recordings import runs_drive_rankings  # noqa: PLC0415
     from ttc import evaluation as ev  # noqa: PLC0415
 
-    named = {drive_name(sequence): ref for sequence, ref in references.items()}
+    named = {recording_id(sequence): ref for sequence, ref in references.items()}
     table = runs_drive_rankings(frames, runs, named, sensor, n_boot=0)
     pooled = table[table["drive"] == ev.POOLED]
     columns = summary_columns(sensor)

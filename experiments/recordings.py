@@ -1,15 +1,16 @@
-"""Runs grouped by recording: which recording a run is on, its short drive name, the setting a
+"""Runs grouped by recording: which recording a run is on (named by
+:func:`experiments.data.datasets.recording_id`), the setting a
 setting's runs share on every recording, and their rankings per drive and pooled. Light on
 imports (the end-of-sweep summary, the references, MLflow and the report use it)."""
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pandas as pd
 
 from experiments.config import setting_hash
+from experiments.data.datasets import recording_id
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
 
@@ -24,12 +25,6 @@ def run_ids_by_recording(runs: pd.DataFrame) -> dict[str, list[str]]:
     """The run ids of each recording (``dataset.sequence``) of ``runs``, recordings sorted."""
     recording = recording_of(runs)
     return {seq: list(recording.index[recording == seq]) for seq in sorted(set(recording))}
-
-
-def drive_name(sequence: str) -> str:
-    """A recording's short name: its folder without ``_sync``
-    (``kitti_raw/2011_09_26/2011_09_26_drive_0052_sync`` → ``2011_09_26_drive_0052``)."""
-    return Path(sequence).name.removesuffix("_sync")
 
 
 def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
@@ -82,13 +77,13 @@ def runs_drive_rankings(
     n_boot: int | None = None,
 ) -> pd.DataFrame:
     """:func:`ttc.evaluation.drive_rankings` of the ok runs of ``runs`` (run records) and
-    their ``frames`` on ``sensor``; ``references`` by drive name (:func:`drive_name`);
+    their ``frames`` on ``sensor``; ``references`` by recording id (:func:`recording_id`);
     ``n_boot`` bootstrap draws (None: :data:`ttc.evaluation.N_BOOT`, 0: no intervals)."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
     ok = runs[runs["status"] == "ok"]
     setting = setting_of(ok, sensor)
-    drive = recording_of(ok).map(drive_name)
+    drive = recording_of(ok).map(recording_id)
     first = ~pd.DataFrame({"drive": drive, "setting": setting}).duplicated().to_numpy()
     ok, setting, drive = ok[first], setting[first], drive[first]  # one run per camera TTC
     frames = frames[frames["run_id"].isin(ok["run_id"])]

@@ -24,11 +24,18 @@ Two layouts, one ``dataset.sequence`` (a folder under ``dataset.root``) for both
   ``sequence`` is the sequence folder (:func:`odometry_sequence`, the
   ``kitti_odometry_sequence`` resolver); :mod:`ttc.io.kitti_odometry` reads it (``ttc.io.frames``
   dispatches there for a folder in this layout).
+
+A recording is named by what it is (:func:`recording_id`, :func:`recording_names`): the id
+``<date>_drive_<NNNN>`` or ``odometry_<NN>`` in CSV columns and folder names, ``drive NNNN`` or
+``odometry NN`` on report pages. The Udacity copy's folder names only its date: it is drive
+0052 (:data:`UDACITY_DRIVE`).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+import re
+from collections.abc import Iterable
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from omegaconf import OmegaConf
@@ -45,6 +52,15 @@ SEQUENCE_RESOLVER = "kitti_raw_sequence"
 ODOMETRY_FOLDER = "kitti_odometry"
 #: The resolver the ``kitti_odometry`` config builds ``dataset.sequence`` with.
 ODOMETRY_RESOLVER = "kitti_odometry_sequence"
+#: The KITTI-raw drive of the Udacity layout (``kitti/<date>``, whose folder names only the
+#: date): the Udacity starter ships frames 0-77 of 2011_09_26 drive 0052.
+UDACITY_DRIVE = "0052"
+#: A KITTI date folder, ``YYYY_MM_DD``.
+DATE = r"\d{4}_\d{2}_\d{2}"
+#: A KITTI-raw drive folder (``<date>_drive_<NNNN>_sync``) or its id (no ``_sync``).
+RAW_DRIVE_ID = re.compile(rf"(?P<date>{DATE})_drive_(?P<drive>\d{{4}})(?:_sync)?")
+#: A KITTI-odometry recording id.
+ODOMETRY_ID = re.compile(r"odometry_(?P<sequence>\d{2})")
 
 
 def kitti_date(value: Any) -> str:
@@ -82,6 +98,44 @@ def odometry_sequence_id(value: Any) -> str:
 def odometry_sequence(sequence_id: Any) -> str:
     """The sequence folder under the data root: ``kitti_odometry/sequences/<NN>``."""
     return f"{ODOMETRY_FOLDER}/sequences/{odometry_sequence_id(sequence_id)}"
+
+
+def recording_id(sequence: str) -> str:
+    """The id of the recording in folder ``sequence`` (``dataset.sequence``, relative to the
+    data root): ``<date>_drive_<NNNN>`` for a KITTI-raw drive, the Udacity copy included
+    (``kitti/2011_09_26`` → ``2011_09_26_drive_0052``, :data:`UDACITY_DRIVE`),
+    ``odometry_<NN>`` for a KITTI-odometry sequence (``kitti_odometry/sequences/04`` →
+    ``odometry_04``), else the folder's name."""
+    path = PurePosixPath(str(sequence).replace("\\", "/"))
+    if found := RAW_DRIVE_ID.fullmatch(path.name):
+        return f"{found['date']}_drive_{found['drive']}"
+    if re.fullmatch(DATE, path.name):
+        return f"{path.name}_drive_{UDACITY_DRIVE}"
+    if path.parent.name == "sequences" and path.name.isdigit():
+        return f"odometry_{odometry_sequence_id(path.name)}"
+    return path.name
+
+
+def recording_names(ids: Iterable[str]) -> dict[str, str]:
+    """The name a report page shows for each :func:`recording_id`: ``drive 0052``,
+    ``odometry 04``, another id as it is; ``2011_09_26 drive 0001`` where two dates' drives
+    share a number."""
+    ids = list(dict.fromkeys(ids))
+    short = {}
+    for rid in ids:
+        if found := RAW_DRIVE_ID.fullmatch(rid):
+            short[rid] = f"drive {found['drive']}"
+        elif found := ODOMETRY_ID.fullmatch(rid):
+            short[rid] = f"odometry {found['sequence']}"
+        else:
+            short[rid] = rid
+    shared = {name for name in short.values() if list(short.values()).count(name) > 1}
+    return {
+        rid: f"{found['date']} {name}"
+        if name in shared and (found := RAW_DRIVE_ID.fullmatch(rid))
+        else name
+        for rid, name in short.items()
+    }
 
 
 def register_resolvers() -> None:

@@ -1,7 +1,8 @@
 """Sweeps over several drives: which run is on which drive, the setting shared by a setting's
 runs on every drive, and the drives report (``drives.md``, ``drives_ranking.csv``): metrics
 and rankings per drive and pooled (:mod:`ttc.evaluation.drives`). The FP.5 / FP.6 reports of
-each drive are written by :func:`experiments.report.cli.build_report` into ``<out>/<drive>/``."""
+each drive are written by :func:`experiments.report.cli.build_report` into ``<out>/<id>/``
+(the recording id, :func:`experiments.data.datasets.recording_id`; pages show its name)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.recordings import drive_name, run_ids_by_recording, runs_drive_rankings
+from experiments.data.datasets import recording_id, recording_names
+from experiments.recordings import run_ids_by_recording, runs_drive_rankings
 from experiments.reference_store import recording_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
@@ -23,14 +25,14 @@ RANKING_COLUMNS = ["drive", "rank", "rank_lo", "rank_hi", "setting", "run_id", *
 
 
 def split_by_recording(data: SweepData) -> dict[str, SweepData]:
-    """One :class:`SweepData` per recording of ``data`` (by drive name, sorted)."""
+    """One :class:`SweepData` per recording of ``data`` (by recording id; sorted by folder)."""
     parts = {}
     for sequence, ids in run_ids_by_recording(data.runs).items():
         runs = data.runs[data.runs["run_id"].isin(ids)].reset_index(drop=True)
         frames = data.frames
         if not frames.empty:
             frames = frames[frames["run_id"].isin(ids)].reset_index(drop=True)
-        parts[drive_name(sequence)] = SweepData(
+        parts[recording_id(sequence)] = SweepData(
             data.dirs, frames, runs, data.overrides, data.repeated
         )
     return parts
@@ -38,9 +40,10 @@ def split_by_recording(data: SweepData) -> dict[str, SweepData]:
 
 def drive_references(data: SweepData, ctx: Context) -> dict[str, pd.DataFrame]:
     """What the runs of every recording of ``data`` are judged against
-    (:func:`experiments.reference_store.recording_references`), by drive name (sorted)."""
+    (:func:`experiments.reference_store.recording_references`), by recording id
+    (:func:`experiments.data.datasets.recording_id`; sorted by folder)."""
     references = recording_references(data.frames, data.runs, ctx.root, ctx.cache)
-    return {drive_name(sequence): ref for sequence, ref in references.items()}
+    return {recording_id(sequence): ref for sequence, ref in references.items()}
 
 
 def sweep_metrics_by_drive(
@@ -48,7 +51,7 @@ def sweep_metrics_by_drive(
 ) -> pd.DataFrame:
     """:func:`ttc.evaluation.sweep_metrics` of the runs of each drive against its own
     reference, with a ``drive`` column, concatenated (sorted by run id)."""
-    by_drive = {drive_name(seq): ids for seq, ids in run_ids_by_recording(runs).items()}
+    by_drive = {recording_id(seq): ids for seq, ids in run_ids_by_recording(runs).items()}
     parts = []
     for name, reference in references.items():
         ids = by_drive.get(name, [])
@@ -80,10 +83,12 @@ def drives_report(
         tables.append(t[cols].assign(sensor=sensor))
     table = pd.concat(tables, ignore_index=True)
     write_csv(table, out / "drives_ranking.csv")
+    names = {ev.POOLED: ev.POOLED, **recording_names(references)}
+    folders = ", ".join(f"{names[r]} (`{r}/`)" for r in references)
     lines = [
         provenance_markdown(data, "Several drives: rankings per drive and pooled"),
-        f"Drives: {', '.join(references)} (each judged against its own reference; FP.5, FP.6 "
-        "and the reference of each drive in its folder). **Pooled**: every setting's frame "
+        f"Drives: {folders}, each judged against its own reference; FP.5, FP.6 "
+        "and the reference of each drive in its folder. **Pooled**: every setting's frame "
         "pairs of all drives together (medians and rates over all of them); its rank interval "
         f"({ev.CI:.0%}) is a moving-block bootstrap resampling blocks of frames within each "
         "drive.",
@@ -92,11 +97,11 @@ def drives_report(
         "",
     ]
     for name, reference in references.items():
-        lines += [f"- {name}: {ev.not_judged_text(reference)}"]
+        lines += [f"- {names[name]}: {ev.not_judged_text(reference)}"]
     for sensor, t in zip(("camera", "lidar"), tables, strict=True):
         for drive in [ev.POOLED, *references]:
             part = t[t["drive"] == drive].drop(columns=["sensor", "drive"])
             part = part.dropna(axis=1, how="all")
-            lines += ["", f"## {sensor}: {drive}", "", markdown_table(part)]
+            lines += ["", f"## {sensor}: {names[drive]}", "", markdown_table(part)]
     write_text("\n".join(lines) + "\n", out / "drives.md")
     return table

@@ -130,9 +130,14 @@ def plot_fused_series(t: pd.DataFrame, reference: pd.DataFrame) -> plt.Figure:
     )
 
 
+#: What a heatmap panel with no value says instead.
+NOTHING_JUDGED = "nothing to draw: no frame has a valid camera TTC of a lead vehicle to judge"
+
+
 def plot_heatmap(ranking: pd.DataFrame) -> plt.Figure:
     """Detector × descriptor heatmaps of the best setting's invalid rate and median MiD (the
-    ranking rule's two keys)."""
+    ranking rule's two keys). A key with no value (no setting has a valid camera TTC of a
+    lead vehicle: drive 0009 has none) gets one line saying so instead of an empty heatmap."""
     best = ranking.sort_values("rank").drop_duplicates(["detector", "descriptor"])
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, (col, label, fmt) in zip(
@@ -141,10 +146,15 @@ def plot_heatmap(ranking: pd.DataFrame) -> plt.Figure:
          ("camera_mid_median", "median MiD (1e-4 log ratio)", ".0f")),
         strict=True,
     ):  # fmt: skip
+        ax.set_title(f"{label} (best over the other axes)", fontsize=10)
         grid = best.pivot(index="detector", columns="descriptor", values=col)
+        if not np.isfinite(grid.to_numpy(float)).any():
+            ax.set_axis_off()
+            ax.text(0.5, 0.5, NOTHING_JUDGED, ha="center", va="center", wrap=True,
+                    fontsize=9, transform=ax.transAxes)  # fmt: skip
+            continue
         sns.heatmap(grid, annot=True, fmt=fmt, cmap="rocket_r", vmin=0, ax=ax,
                     cbar_kws={"shrink": 0.8}, annot_kws={"size": 8})  # fmt: skip
-        ax.set_title(f"{label} (best over the other axes)", fontsize=10)
     fig.suptitle("FP.6 camera TTC error by detector x descriptor (blank: invalid pair)")
     fig.tight_layout()
     return fig

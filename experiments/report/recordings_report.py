@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.recordings import drive_name, recording_of
+from experiments.data.datasets import recording_id, recording_names
+from experiments.recordings import recording_of
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.html.page import markdown_html, page, write_assets
@@ -55,7 +56,7 @@ def ttc_ranges(data: SweepData, references: dict[str, pd.DataFrame]) -> pd.DataF
     """Per run and reference-TTC range (:func:`ttc.evaluation.binned_metrics`, TSTTC-style
     < 6 s, 6–12, 12–24, > 24 s) of every recording with judged pairs, with its ``drive``."""
     ok = data.runs[data.runs["status"] == "ok"]
-    drive = recording_of(ok).map(drive_name)
+    drive = recording_of(ok).map(recording_id)
     parts = []
     for name, reference in references.items():
         mine = data.frames[data.frames["run_id"].isin(drive.index[drive == name])]
@@ -90,7 +91,7 @@ def false_alarms(data: SweepData, references: dict[str, pd.DataFrame]) -> pd.Dat
     """Per run on a recording with frame pairs without a vehicle ahead: its drive, axes and
     :func:`ttc.evaluation.no_lead_reports` (empty when no recording has such pairs)."""
     ok = data.runs[data.runs["status"] == "ok"]
-    drive = recording_of(ok).map(drive_name)
+    drive = recording_of(ok).map(recording_id)
     lead = ev.lead_rows(data.frames[data.frames["run_id"].isin(ok["run_id"])])
     parts = []
     for name, reference in references.items():
@@ -147,10 +148,12 @@ def recordings_report(
     alarms = false_alarms(data, references)
     if not alarms.empty:
         write_csv(alarms, out / "recordings_false_alarms.csv")
-    finding = ev.transfer_sentence(table[table["sensor"] == "camera"], "camera_mid_median", TOP)
+    names = recording_names(references)
+    shown = table.assign(drive=table["drive"].replace(names))  # the page names recordings
+    finding = ev.transfer_sentence(shown[shown["sensor"] == "camera"], "camera_mid_median", TOP)
     lines = [
         provenance_markdown(data, "Across recordings: how far a ranking carries"),
-        f"Recordings: {', '.join(references)}; each setting ranked on each by "
+        f"Recordings: {_named(names)}; each setting ranked on each by "
         "`ttc.evaluation.RANKING_RULE` against its own reference, and pooled (drives.md has the "
         "intervals). A recording where no frame pair can be judged ranks nothing.",
         "",
@@ -158,7 +161,7 @@ def recordings_report(
         "",
     ]
     for sensor in SENSORS:
-        part = table[table["sensor"] == sensor]
+        part = shown[shown["sensor"] == sensor]
         key = f"{sensor}_mid_median"
         lines += [f"## {sensor}", "", ev.transfer_sentence(part, key, TOP), "",
                   "Kendall's τ between the recordings' rankings:", "",
@@ -167,10 +170,10 @@ def recordings_report(
                   markdown_table(ev.best_elsewhere(part, key, BEST)), "",
                   f"In the top {TOP} on every recording: "
                   f"{', '.join(ev.top_everywhere(part, key, TOP)) or 'none'}", ""]  # fmt: skip
-    lines += _range_lines(binned)
-    lines += _false_alarm_lines(alarms)
+    lines += _range_lines(_with_names(binned, names))
+    lines += _false_alarm_lines(_with_names(alarms, names))
     lines += ["## every setting: rank and median MiD per recording", "",
-              markdown_table(wide.drop(columns="sensor").head(40)),
+              markdown_table(_wide_named(wide, names).drop(columns="sensor").head(40)),
               "", "(all settings and sensors: recordings.csv)"]  # fmt: skip
     text = "\n".join(lines) + "\n"
     write_text(text, out / "recordings.md")
@@ -179,6 +182,23 @@ def recordings_report(
     write_text(page("recordings", markdown_html(text), here="recordings.html"),
                html / "recordings.html")  # fmt: skip
     return finding
+
+
+def _named(names: dict[str, str]) -> str:
+    """The recordings in words, each name with its id (the CSVs' columns and folders)."""
+    return ", ".join(f"{name} (`{rid}`)" for rid, name in names.items())
+
+
+def _with_names(table: pd.DataFrame, names: dict[str, str]) -> pd.DataFrame:
+    """``table`` with its ``drive`` column (recording ids) as the recordings' names."""
+    return table.assign(drive=table["drive"].replace(names)) if "drive" in table else table
+
+
+def _wide_named(wide: pd.DataFrame, names: dict[str, str]) -> pd.DataFrame:
+    """:func:`wide_ranks` with ``rank_<id>`` / ``mid_<id>`` as ``rank <name>`` / ``mid <name>``."""
+    renamed = {f"{kind}_{rid}": f"{kind} {name}" for rid, name in names.items()
+               for kind in ("rank", "mid")}  # fmt: skip
+    return wide.rename(columns=renamed)
 
 
 def _false_alarm_lines(alarms: pd.DataFrame) -> list[str]:

@@ -5,6 +5,14 @@ while the sweep is planned, and the markers that tell which jobs a dead worker w
 A worker restores the sweep's shared state (Hydra context, master config, task function,
 Hydra's singletons) once per sweep, not once per job: the stock joblib launcher pickles it
 again for every job and the worker re-discovers every Hydra plugin when it restores it.
+
+A worker's memory grows by design after its first call: the stage cache keeps up to 256 MB
+of entries (:data:`ttc.engine.cache.MEMORY_MB`), the grey images up to 64 MB, and models
+load on first use. loky takes a worker whose memory grew by more than 300 MB since its first
+call for a leaking one and replaces it mid-sweep, with a ``UserWarning: A worker stopped
+while some jobs were given to the executor`` (a cold ``fp6_grid``: both workers grew from
+≈ 350 to 630-710 MB and were replaced after 110-120 s). :func:`allow_worker_growth` raises
+that limit in each worker to :data:`WORKER_GROWTH_BYTES`.
 """
 
 from __future__ import annotations
@@ -24,13 +32,19 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, run_job, setup_globals
 from joblib import effective_n_jobs
-from joblib.externals.loky import get_reusable_executor
+from joblib.externals.loky import get_reusable_executor, process_executor
 from omegaconf import DictConfig, open_dict
 
 from experiments.sweep.compose import Composer
 
 #: Folder (in the sweep folder) of the markers of the jobs running right now: ``<job idx>``.
 STARTED_DIR = ".launcher"
+#: How much a worker's memory may grow after its first call before loky retires it as leaking
+#: (bytes): its bounded caches (320 MB) and the models it loads on first use (PyTorch and the
+#: learned features: several hundred MB) stay below it; a real leak still reaches it.
+WORKER_GROWTH_BYTES = 2 * 2**30
+#: The module global of loky's memory-leak check (read by each worker after each call).
+LOKY_LEAK_LIMIT = "_MAX_MEMORY_LEAK_SIZE"
 
 
 @dataclass(frozen=True)
@@ -83,10 +97,21 @@ def worker_state(state: SweepState) -> dict[str, Any]:
     return _WORKER
 
 
+def allow_worker_growth(limit: int = WORKER_GROWTH_BYTES) -> None:
+    """In a worker process: let its memory grow by up to ``limit`` bytes after its first call
+    before loky's memory-leak check replaces it (module docstring). Never lowers loky's own
+    limit. A loky without it is left as it is (tests/test_launcher.py fails on such a loky)."""
+    if not hasattr(process_executor, LOKY_LEAK_LIMIT):
+        return
+    current = getattr(process_executor, LOKY_LEAK_LIMIT)
+    setattr(process_executor, LOKY_LEAK_LIMIT, max(int(current), limit))
+
+
 def warm(state: SweepState, modules: Sequence[str]) -> int:
     """Import ``modules``, restore the sweep state in this worker and call each module's
     ``warm_up(master config)`` if it has one (work any job of the sweep needs, done while the
     main process plans); this worker's process id."""
+    allow_worker_growth()
     imported = [importlib.import_module(name) for name in modules]
     worker = worker_state(state)
     HydraConfig.instance().set_config(worker["master"])
@@ -113,6 +138,7 @@ def worker_death(exc: BaseException) -> str:
 def execute_job(idx: int, overrides: Sequence[str], state: SweepState) -> JobReturn:
     """One job in a worker: its config (:meth:`Composer.config`), then Hydra's ``run_job``.
     ``<state.started>/<idx>`` exists while it runs (it stays when the worker dies)."""
+    allow_worker_growth()  # a worker that did not warm up (a job re-run alone)
     marker = Path(state.started) / str(idx)
     marker.write_text(str(os.getpid()))
     worker = worker_state(state)
