@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiments.data.datasets import recording_id
 from experiments.paths import default_cache_dir, default_data_root
-from experiments.recordings import drive_name, recording_of, run_ids_by_recording
+from experiments.recordings import recording_of, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache, Task, cache_key
 from ttc.engine.stages import FrameStages
@@ -168,7 +169,7 @@ def object_references(
 ) -> dict[str, pd.DataFrame]:
     """The reference of every tracked object of each real recording of the runs
     (:func:`ttc.evaluation.object_reference.object_reference`), by recording
-    (``dataset.sequence``), with a ``recording`` column (its name); the ego speed per frame
+    (``dataset.sequence``), with a ``recording`` column (its id, e.g. ``2011_09_26_drive_0009``); the ego speed per frame
     from the rows' ``ego_speed_mps`` where they have it. ``settings_of(run_id)``: a run's
     core settings and frame range (the recording's first run sets the objects, the lidar
     association and the projection)."""
@@ -186,5 +187,5 @@ def object_references(
             per_frame = mine.groupby("frame")[EGO_SPEED].median()
             ego = per_frame.reindex(np.arange(len(times))).to_numpy(dtype=float)
         ref = object_reference(boxes, times, width, ego)
-        out[sequence] = ref.assign(recording=drive_name(sequence))
+        out[sequence] = ref.assign(recording=recording_id(sequence))
     return out
