@@ -120,10 +120,19 @@ def recording_references(
     return out
 
 
+#: Frames beyond the judged ones on either side whose boxes enter an object reference: the
+#: Savitzky–Golay window's half-width, so a judged frame is smoothed as within the recording.
+MARGIN_FRAMES = reference_module.WINDOW // 2
+
+
 def recording_boxes(
-    sequence_dir: Path, settings: Settings, cache: StageCache, projection: str = "P_rect_02"
+    sequence_dir: Path,
+    settings: Settings,
+    cache: StageCache,
+    projection: str = "P_rect_02",
+    span: tuple[int, int] | None = None,
 ) -> tuple[pd.DataFrame, np.ndarray, int]:
-    """Every YOLO box of every frame of a recording with its object's nearest face
+    """Every YOLO box of the frames ``span`` (first, last; default every frame) of a recording with its object's nearest face
     (:func:`ttc.steps.object_lidar.associate_objects`) and whether it is the ego lane's lead
     (:func:`ttc.steps.lidar.associate_lead`) and its bearing (degrees left of the forward axis,
     the median of its points'), under ``settings``' objects, lane crop, shrink
@@ -131,6 +140,8 @@ def recording_boxes(
     stage cache (a sweep computed them). Returns the boxes (:func:`ttc.evaluation.object_reference.object_reference`'s
     input), the frame times (s, index = frame) and the image width (px)."""
     frames = recording_frames(sequence_dir)
+    if span is not None:
+        frames = [f for f in frames if span[0] <= f <= span[1]]
     rng = FrameRange(Path(sequence_dir), first=frames[0], last=frames[-1], projection=projection)
     stages = FrameStages(settings, rng, cache)
     calib = load_calibration(sequence_dir, rng.projection)
@@ -170,7 +181,9 @@ def object_references(
     """The reference of every tracked object of each real recording of the runs
     (:func:`ttc.evaluation.object_reference.object_reference`), by recording
     (``dataset.sequence``), with a ``recording`` column (its id, e.g. ``2011_09_26_drive_0009``); the ego speed per frame
-    from the rows' ``ego_speed_mps`` where they have it. ``settings_of(run_id)``: a run's
+    from the rows' ``ego_speed_mps`` where they have it. The frames are the runs' (from the first
+    previous frame to the last frame) and :data:`MARGIN_FRAMES` on either side where the
+    recording has them: a report pays YOLO for the frames it judges, not for a whole drive. ``settings_of(run_id)``: a run's
     core settings and frame range (the recording's first run sets the objects, the lidar
     association and the projection)."""
     root = Path(data_dir) if data_dir else default_data_root()
@@ -181,7 +194,13 @@ def object_references(
         if ev.has_truth(mine):
             continue
         settings, rng = settings_of(ids[0])
-        boxes, times, width = recording_boxes(root / sequence, settings, cache, rng.projection)
+        span = (
+            int(mine["prev_frame"].min()) - MARGIN_FRAMES,
+            int(mine["frame"].max()) + MARGIN_FRAMES,
+        )
+        boxes, times, width = recording_boxes(
+            root / sequence, settings, cache, rng.projection, span
+        )
         ego = None
         if EGO_SPEED in mine and mine[EGO_SPEED].notna().any():
             per_frame = mine.groupby("frame")[EGO_SPEED].median()
