@@ -25,6 +25,7 @@ from ttc.evaluation.object_errors import (
     track_bootstrap_ranks,
 )
 from ttc.evaluation.object_reference import REFERENCE_OBJECT_COLUMNS
+from ttc.evaluation.ttc_bins import OBJECT_TTC_BINS
 from ttc.settings import AXES
 
 #: Settings shown in each best-of table.
@@ -84,6 +85,8 @@ def _page(
     tracks = reference.groupby("track_id")["role"].first().value_counts()
     one = judged.drop_duplicates(["frame", "curr_box", "ref_track_id"])
     counts = pd.crosstab(one["role"], one["ttc_bin"].where(one["judged"], "not judged"))
+    order = [c for c in (*OBJECT_TTC_BINS, "not judged") if c in counts.columns]
+    counts = counts[order]
     lines = [
         provenance_markdown(data, "Every object: TTC judged per tracked vehicle"),
         "Every YOLO box gets its own lidar points (the nearest compact group of its frustum), "
