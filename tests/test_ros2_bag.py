@@ -10,6 +10,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 
@@ -118,15 +119,29 @@ def test_the_bag_gives_the_kitti_loader_s_results_on_drive_0009(bag, tmp_path) -
         len(rows[0]) == len(rows[1]) > 15 and not (rows[1]["lidar_reason"] == "frame_error").any()
     )
     both = rows[0].merge(rows[1], on=keys, suffixes=("_k", "_b"), validate="one_to_one")
-    for col in ("box_x", "box_y", "box_w", "box_h", "matches_in_box", "object_points"):
+    for col in ("box_x", "box_y", "box_w", "box_h", "matches_in_box", "box_shared_matches"):
         assert (both[f"{col}_k"] == both[f"{col}_b"]).all(), col
-    for col in ("object_distance_m", "d_prev", "d_curr"):
-        gap = (both[f"{col}_k"] - both[f"{col}_b"]).abs()
-        assert ((gap <= 0.01) | (both[f"{col}_k"].isna() & both[f"{col}_b"].isna())).all(), col
-    for col in ("ttc_camera", "ttc_lidar"):
-        k, b = both[f"{col}_k"], both[f"{col}_b"]
-        finite = np.isfinite(k) & np.isfinite(b)
-        assert (np.isfinite(k) == np.isfinite(b)).all() and (abs(b / k - 1)[finite] < 0.02).all()
+    # kitti2mcap's own calibration is up to 0.8 px off (module docstring of kitti2mcap.yaml):
+    # a point on a box edge may change sides, so a few nearest faces move by 1-2 cm
+    gap = (both["object_distance_m_k"] - both["object_distance_m_b"]).abs()
+    assert (
+        gap.max() < 0.02 and (gap <= 0.01).sum() >= 0.9 * both["object_distance_m_k"].notna().sum()
+    )
+    k, b = both["ttc_camera_k"], both["ttc_camera_b"]
+    assert (np.isfinite(k) == np.isfinite(b)).all() and (
+        abs(b / k - 1)[np.isfinite(k)] < 0.02
+    ).all()
+    # with the KITTI files' calibration the bag's rows are the folder's: the reader is exact
+    same = run_setting(
+        settings, ranges[1], cache, calibration=load_calibration(ranges[0].sequence_dir)
+    )
+    timed = ["dt", "ego_speed_mps", "ttc_camera", "ttc_lidar", "ttc_fused"]
+    kept = [c for c in rows[0].columns if c not in timed and not c.startswith(("ms_", "cached_"))]
+    pd.testing.assert_frame_equal(rows[0][kept], same[kept])
+    for col in ("ttc_camera", "ttc_lidar"):  # dt: camera stamps here, lidar stamps there
+        k, b = rows[0][col], same[col]
+        finite = np.isfinite(k)
+        assert (finite == np.isfinite(b)).all() and (abs(b / k - 1)[finite] < 0.002).all()
     assert both["ttc_camera_k"].notna().sum() > 10  # parked cars: real camera TTCs compared
     speed = both["ego_speed_mps_b"] / both["ego_speed_mps_k"]
     assert speed.between(0.98, 1.02).all()  # /tf ego pose against oxts vf
