@@ -164,6 +164,7 @@ def test_the_ros_convention_misplaces_kitti2mcap_s_points(bag) -> None:
     assert 2.0 < u[0] - u[1] < 8.0  # baseline twice: +4.4 px at 10 m; R_rect_02: −2 px
 
 
+@pytest.mark.slow
 def test_a_compressed_image_bag_runs_and_one_without_tf_static_is_refused(bag, tmp_path) -> None:
     def compress(topic, name, msg):
         if topic != IMAGE:
@@ -192,6 +193,7 @@ def test_a_compressed_image_bag_runs_and_one_without_tf_static_is_refused(bag, t
         load_calibration(BagSource(no_tf))
 
 
+@pytest.mark.slow
 def test_a_camera_message_without_a_scan_is_a_frame_error_of_its_pairs(bag, tmp_path) -> None:
     """Scan 2 dropped: frame 2's nearest scan is 100 ms away, beyond half a period."""
     count = {"n": 0}
@@ -213,6 +215,7 @@ def test_a_camera_message_without_a_scan_is_a_frame_error_of_its_pairs(bag, tmp_
     assert (rows[rows["frame"] == 1]["lidar_reason"] != "frame_error").all()
 
 
+@pytest.mark.slow
 def test_bad_bags_are_refused_with_one_message_naming_the_file_or_topic(bag, tmp_path) -> None:
     half = tmp_path / "half.mcap"
     half.write_bytes(bag.read_bytes()[: bag.stat().st_size // 2])
