@@ -41,6 +41,7 @@ from ttc.features.learned_params import LEARNED_MATCHERS
 from ttc.features.matching import MATCHER_PARAMS, NO_SELECTOR, TRACKERS, SelectorParams
 from ttc.io.calibration import PROJECTIONS
 from ttc.io.frames import recording_frames
+from ttc.io.ros2_bag import BagSource
 from ttc.settings import AXIS_TABLE, FrameRange, Settings
 from ttc.steps.lidar import LaneCropParams
 from ttc.steps.object_lidar import ObjectLidarParams
@@ -57,7 +58,7 @@ SINGLE_CLASS_GROUPS: dict[str, type] = {
 
 @dataclass
 class DatasetConfig:
-    """A frame range of one KITTI-raw recording under the data root."""
+    """A frame range of one recording under the data root (KITTI folders or a ROS 2 bag)."""
 
     name: str = MISSING
     root: str = MISSING  # data root (``$TTC_DATA_DIR`` or ../shared/data)
@@ -70,6 +71,12 @@ class DatasetConfig:
     date: str = ""  # kitti_raw: the KITTI date folder, e.g. 2011_09_26
     drive: str = ""  # kitti_raw: the drive number, e.g. 0052
     sequence_id: str = ""  # kitti_odometry: the sequence number, e.g. 04
+    path: str = ""  # ros2_bag: the bag (.mcap or rosbag2 folder), absolute or under root
+    image_topic: str = ""  # ros2_bag: "" = the bag's only Image / CompressedImage topic
+    camera_info_topic: str = ""  # ros2_bag: "" = the bag's only CameraInfo topic
+    lidar_topic: str = ""  # ros2_bag: "" = the bag's only PointCloud2 topic
+    scan_tolerance_s: float | None = None  # ros2_bag: None = half the lidar's period
+    camera_frame: str = "optical"  # ros2_bag: optical (ROS) or rectified (ttc.io.bag_recording)
     generator: Any = None  # a generated dataset's parameters (dataset=scale_truth), else None
 
 
@@ -253,8 +260,15 @@ def swept_overrides(config: DictConfig) -> dict[str, Any]:
 
 
 def sequence_dir(cfg: DictConfig) -> Path:
-    """The recording's folder: ``dataset.sequence`` under the data root."""
+    """The recording's folder: ``dataset.sequence`` under the data root (a bag: its path)."""
     return data_root(cfg) / cfg.dataset.sequence
+
+
+def recording_source(cfg: DictConfig) -> Path | BagSource:
+    """What the core reads the recording from: :func:`sequence_dir`, or for a ``ros2_bag``
+    dataset its :class:`~ttc.io.ros2_bag.BagSource` (topics, tolerance, camera frame)."""
+    ds = OmegaConf.to_container(cfg.dataset, resolve=True)
+    return datasets.bag_source(ds, sequence_dir(cfg)) or sequence_dir(cfg)
 
 
 def frame_range_from_config(cfg: DictConfig) -> FrameRange:
@@ -264,7 +278,7 @@ def frame_range_from_config(cfg: DictConfig) -> FrameRange:
         from experiments.data.scale_truth import generated_frame_range
 
         return generated_frame_range(cfg, sequence_dir(cfg))
-    recording = sequence_dir(cfg)
+    recording = recording_source(cfg)
     return FrameRange(
         sequence_dir=recording,
         first=ds.first,
@@ -288,6 +302,8 @@ def prepared_frame_range(cfg: DictConfig) -> FrameRange:
 def missing_data_message(cfg: DictConfig) -> str:
     """What to say when the configured recording folder does not exist."""
     recording = sequence_dir(cfg)
+    if cfg.dataset.get("path"):
+        return f"ROS 2 bag not found: {recording} (dataset.path={cfg.dataset.path})"
     if cfg.dataset.get("date"):
         return datasets.missing_drive_message(recording)
     if cfg.dataset.get("sequence_id"):
@@ -324,7 +340,10 @@ def config_problems(cfg: DictConfig) -> list[str]:
         except (ValueError, TypeError) as exc:
             problems.append(f"lidar.{key}: {exc}")
     ds = cfg.dataset
-    recording = sequence_dir(cfg)
+    bag = datasets.bag_problems(OmegaConf.to_container(ds, resolve=True), sequence_dir(cfg))
+    if bag:  # a ros2_bag dataset that cannot be read: nothing below can be checked
+        return problems + bag
+    recording = recording_source(cfg)
     first, step = int(ds.first), int(ds.step)
     last = datasets.resolved_last(ds.last, recording)
     if last is None:  # a whole drive that has no frames: said below
@@ -344,7 +363,7 @@ def config_problems(cfg: DictConfig) -> list[str]:
         problems.append(f"dataset.projection={ds.projection} must be one of {PROJECTIONS}")
     if problems:
         return problems
-    if not recording.is_dir():
+    if bag is None and not recording.is_dir():
         return [missing_data_message(cfg)]
     present = recording_frames(recording)
     if not present:
@@ -354,7 +373,7 @@ def config_problems(cfg: DictConfig) -> list[str]:
             f"dataset.last={last} is past the recording's last frame: frames "
             f"{present[0]}–{present[-1]} exist in {recording}"
         )
-    return problems + datasets.layout_problems(ds.date, recording)
+    return problems + ([] if bag is not None else datasets.layout_problems(ds.date, recording))
 
 
 def validate_config(cfg: DictConfig) -> None:

@@ -74,7 +74,8 @@ def output_dir() -> Path:
 
 def check_data(cfg: DictConfig) -> None:
     """Exit with a plain message when the data root is missing."""
-    if not sequence_dir(cfg).is_dir():
+    recording = sequence_dir(cfg)
+    if not (recording.is_dir() or (cfg.dataset.get("path") and recording.exists())):
         sys.exit(missing_data_message(cfg))
 
 

@@ -18,6 +18,7 @@ from experiments.config import (
     settings_from_config,
 )
 from tests.conftest import PROJECT_ROOT
+from ttc.io.ros2_bag import BagSource
 from ttc.settings import AXES
 
 CONF = PROJECT_ROOT / "conf"
@@ -42,6 +43,8 @@ def test_every_axis_has_a_config_group_folder() -> None:
 USER_FILES = {
     ("objects", "yolov3"): ["objects.weights_path=/nonexistent/yolov3.weights"],
     ("dataset", "kitti_raw"): ["dataset.last=18"],  # a drive the shared data does not hold
+    ("dataset", "ros2_bag"): ["dataset.path=/nonexistent/drive.mcap", "dataset.last=18"],
+    ("dataset", "kitti2mcap"): ["dataset.path=/nonexistent/0009.mcap", "dataset.last=15"],
 }
 
 
@@ -53,7 +56,7 @@ def test_every_option_composes_and_builds_the_core_objects(group: str, option: s
     settings = settings_from_config(cfg)
     frames = frame_range_from_config(cfg)
     assert settings.axes()[AXES[0]] == cfg[AXES[0]].name
-    assert isinstance(frames.sequence_dir, Path) and frames.first <= frames.last
+    assert isinstance(frames.sequence_dir, Path | BagSource) and frames.first <= frames.last
     assert len(run_id(cfg)) == 16 and set(AXES) <= set(setting_config(cfg))
 
 

@@ -24,6 +24,10 @@ Two layouts, one ``dataset.sequence`` (a folder under ``dataset.root``) for both
   ``sequence`` is the sequence folder (:func:`odometry_sequence`, the
   ``kitti_odometry_sequence`` resolver); :mod:`ttc.io.kitti_odometry` reads it (``ttc.io.frames``
   dispatches there for a folder in this layout).
+* a ROS 2 bag (``ros2_bag``, key ``path``: an ``.mcap`` file or a rosbag2 folder with
+  ``metadata.yaml``, absolute or under the data root; ``sequence`` is the path): read by
+  :mod:`ttc.io.bag_recording` through a :class:`ttc.io.ros2_bag.BagSource` of the topics,
+  the scan tolerance and the camera frame convention (:func:`bag_source`).
 
 A recording is named by what it is (:func:`recording_id`, :func:`recording_names`): the id
 ``<date>_drive_<NNNN>`` or ``odometry_<NN>`` in CSV columns and folder names, ``drive NNNN`` or
@@ -40,9 +44,10 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from ttc.io import kitti_odometry, oxts
+from ttc.io import bag_recording, kitti_odometry, oxts
 from ttc.io.calibration import CAM_TO_CAM, VELO_TO_CAM, calibration_dir
 from ttc.io.frames import FrameDataError, read_frame_times, recording_frames
+from ttc.io.ros2_bag import BagSource
 
 #: Folder under the data root holding KITTI-raw dates in the official layout.
 RAW_FOLDER = "kitti_raw"
@@ -147,6 +152,51 @@ def register_resolvers() -> None:
         OmegaConf.register_new_resolver(ODOMETRY_RESOLVER, odometry_sequence)
 
 
+#: The ``dataset`` keys of a bag recording, each with its value that leaves it out of a setting
+#: (the KITTI datasets' settings read as before the keys existed).
+BAG_KEYS = {
+    "path": "",
+    "image_topic": "",
+    "camera_info_topic": "",
+    "lidar_topic": "",
+    "scan_tolerance_s": None,
+    "camera_frame": "optical",
+}
+
+
+def bag_source(dataset: dict[str, Any], recording: Path) -> BagSource | None:
+    """The :class:`BagSource` of a ``ros2_bag`` dataset (``path`` set) at ``recording`` (the
+    path under the data root), else None."""
+    if not dataset.get("path"):
+        return None
+    tolerance = dataset.get("scan_tolerance_s")
+    return BagSource(
+        path=Path(recording),
+        image_topic=dataset.get("image_topic") or "",
+        camera_info_topic=dataset.get("camera_info_topic") or "",
+        lidar_topic=dataset.get("lidar_topic") or "",
+        scan_tolerance_s=None if tolerance is None else float(tolerance),
+        camera_frame=dataset.get("camera_frame") or "optical",
+    )
+
+
+def bag_problems(dataset: dict[str, Any], recording: Path) -> list[str] | None:
+    """What keeps a ``ros2_bag`` dataset (``path`` set, or empty with ``sequence``) from being read,
+    in words: no ``path``, a bag that is not there, an unknown ``camera_frame``, a bag
+    :func:`ttc.io.bag_recording.bag_problems` refuses (topics, calibration, transform, scan
+    fields, image size). None for a dataset that is not a bag."""
+    if not dataset.get("path") and dataset.get("sequence") != "":  # ros2_bag: sequence = path
+        return None
+    if not dataset.get("path"):
+        return ["dataset.path is empty: name the bag (an .mcap file or a rosbag2 folder)"]
+    if dataset.get("camera_frame") not in bag_recording.CAMERA_FRAMES:
+        return [f"dataset.camera_frame={dataset.get('camera_frame')} must be one of "
+                f"{bag_recording.CAMERA_FRAMES}"]  # fmt: skip
+    if not Path(recording).exists():
+        return [f"ROS 2 bag not found: {recording} (dataset.path={dataset['path']})"]
+    return bag_recording.bag_problems(bag_source(dataset, recording))
+
+
 def last_frame(sequence_dir: Path) -> int | None:
     """The last frame index a recording folder holds; None when it holds none (or is absent)."""
     present = recording_frames(sequence_dir)
@@ -177,8 +227,15 @@ def dataset_identity(dataset: dict[str, Any], sequence_dir: Path) -> dict[str, A
     names the frames it covered (a drive with more frames later is a different run).
     A Udacity-layout dataset (no ``date``) is returned unchanged. ``sequence_id`` (the
     ``kitti_odometry`` key) is recorded in its two-digit spelling, and left out when empty,
-    so the other datasets' settings read as before the key existed."""
+    so the other datasets' settings read as before the key existed; so are a bag's keys
+    (:data:`BAG_KEYS`) for a dataset that is not a bag."""
     out = dict(dataset)
+    source = bag_source(out, sequence_dir)
+    if source is None:
+        for key in BAG_KEYS:
+            out.pop(key, None)
+    else:
+        sequence_dir = source
     if out.get("sequence_id"):
         out["sequence_id"] = odometry_sequence_id(out["sequence_id"])
     else:

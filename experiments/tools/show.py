@@ -20,6 +20,9 @@ and, for the pair (frame − dataset.step, frame) under the configured setting:
 * ``keypoint_matches.png``: previous above current, the lead box's matches kept / removed by FP.3;
 * ``box_matches.png``: the FP.1 box pairs, one colour each, with their shared-match counts.
 
+For a ROS 2 bag (``dataset=ros2_bag``) it first lists the bag's topics, types and message
+counts and which ones the run reads.
+
 Frame 0 (or any frame < step) has no previous frame: only the three frame pictures are written.
 No Hydra output folder is created; Hydra's log goes to stdout.
 """
@@ -36,6 +39,7 @@ from omegaconf import DictConfig
 from experiments import paths
 from experiments.config import (
     prepared_frame_range,
+    recording_source,
     register_configs,
     settings_from_config,
 )
@@ -47,8 +51,10 @@ from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.objects import ModelFileError, coco_names
+from ttc.io.bag_recording import topics
 from ttc.io.calibration import load_calibration
 from ttc.io.frames import FrameDataError, frame_files, read_lidar_scan
+from ttc.io.ros2_bag import BagSource
 from ttc.rows import PairDetail
 from ttc.settings import AXES, FrameRange, Settings
 from ttc.steps.lidar import project_to_image
@@ -183,10 +189,26 @@ def write_pictures(cfg: DictConfig) -> list[Path]:
     return [save_png(image, out_dir / name) for name, image in pictures.items()]
 
 
+def print_bag_topics(cfg: DictConfig) -> None:
+    """For a ``ros2_bag`` dataset: the bag's topics with their types and message counts, and
+    the topics the run reads (``lidar.png`` then shows whether the projection is right)."""
+    source = recording_source(cfg)
+    if not isinstance(source, BagSource):
+        return
+    index, image, info, lidar = topics(source)
+    print(f"{source.path}:")
+    for topic in index.topics.values():
+        used = " <- frames" if topic.name == image else ""
+        used = used or (" <- calibration" if topic.name == info else "")
+        used = used or (" <- scans" if topic.name == lidar else "")
+        print(f"  {topic.name}  {topic.type}  {len(topic)} messages{used}")
+
+
 @hydra.main(version_base="1.3", config_path=str(paths.CONF_DIR), config_name="config")
 def main(cfg: DictConfig) -> None:
     check_data(cfg)
     try:
+        print_bag_topics(cfg)
         paths = write_pictures(cfg)
     except (FrameDataError, ModelFileError) as exc:
         fail(f"cannot show frame {cfg.show.frame}: {exc}", exc)

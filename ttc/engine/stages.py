@@ -14,7 +14,8 @@ matches (klt) previous keypoints key, current image file, KLT params      tracks
 (dis, farneback) the same with the dense-flow params                        tracks
 ============  ==========================================================  ==============
 
-A file is named by its identity (resolved path, size, mtime). NN and kNN selection share the
+A file is named by its identity (resolved path, size, mtime); a ROS 2 bag's image or scan by
+its bag files' identity, topic and header stamp (:func:`ttc.io.bag_recording.message_identity`). NN and kNN selection share the
 k=2 candidates, so the selector is not part of the matches key. Options at their "off" value
 (``detector.subpixel=false``) are left out of the keys (:func:`stage_params`), so entries made
 before the option existed stay valid; a ``custom`` stage's key holds the hash of its code. Bump a stage's number in
@@ -54,6 +55,7 @@ from ttc.io.frames import (
     read_image,
     read_lidar_scan,
 )
+from ttc.io.ros2_bag import METADATA, bag_files, is_bag
 from ttc.plugins import USER, code_identity
 from ttc.settings import AXIS_BY_NAME, CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.lidar import crop_to_lane
@@ -250,7 +252,11 @@ def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     """Every input file a run of ``settings`` on ``frames`` reads (some may not exist): the
     calibration and timestamps files, the ego speed's (:func:`ttc.io.ego_motion.input_files`:
     the oxts packets of the frames' times), each frame's image and scan, the object model
-    files."""
+    files. A ROS 2 bag's: its files (``.mcap``, a rosbag2 folder's ``metadata.yaml``)."""
+    models = [Path(path) for path, _, _ in model_identity(settings.objects)]
+    if is_bag(frames.sequence_dir):
+        bag = Path(frames.sequence_dir)
+        return [*([bag / METADATA] if bag.is_dir() else []), *bag_files(bag), *models]
     seq = Path(frames.sequence_dir)
     calib = calibration_dir(seq)
     files = [calib / CAM_TO_CAM, calib / VELO_TO_CAM, *(seq / name for name in TIMESTAMP_FILES)]
@@ -264,7 +270,7 @@ def input_files(settings: Settings, frames: FrameRange) -> list[Path]:
     for index in frames.indices:
         ff = frame_files(seq, index)
         files += [ff.image, ff.scan]
-    return files + [Path(path) for path, _, _ in model_identity(settings.objects)]
+    return files + models
 
 
 def shared_frame_tasks(settings: Settings, frames: FrameRange, cache: StageCache) -> list[Task]:

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ttc.io import kitti_odometry
+from ttc.io import bag_recording, kitti_odometry
 from ttc.io.calib_text import matrix, read_calibration_file
+from ttc.io.ros2_bag import is_bag
 
 CAM_TO_CAM = "calib_cam_to_cam.txt"
 VELO_TO_CAM = "calib_velo_to_cam.txt"
@@ -56,10 +57,14 @@ def load_calibration(sequence_dir: Path | str, projection: str = "P_rect_02") ->
     ``projection="P_rect_02"`` is correct for image_02; ``"P_rect_00"`` reproduces the Udacity
     C++ starter (a shift of ≈ 45 px / z[m] in u). A KITTI-odometry sequence's ``calib.txt``
     is read by :func:`ttc.io.kitti_odometry.read_calibration` (``P2`` / ``P0`` and ``Tr``, no
-    rectifying rotation).
+    rectifying rotation). A ROS 2 bag's comes from its ``CameraInfo`` and tf tree
+    (:func:`ttc.io.bag_recording.calibration`; ``projection`` does not apply).
     """
     if projection not in PROJECTIONS:
         raise ValueError(f"projection must be one of {PROJECTIONS}, got {projection!r}")
+    if is_bag(sequence_dir):  # CameraInfo and tf: P · R · T (ttc.io.bag_recording)
+        p, r, velo_to_cam, size = bag_recording.calibration(bag_recording.as_source(sequence_dir))
+        return Calibration(p, r, velo_to_cam, size, projection)
     if kitti_odometry.is_odometry_sequence(sequence_dir):  # calib.txt: P2 · Tr
         p_rect, velo_to_cam = kitti_odometry.read_calibration(sequence_dir, projection)
         size = kitti_odometry.image_size(sequence_dir)

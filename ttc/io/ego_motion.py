@@ -7,6 +7,8 @@ From whatever the recording holds:
   (:func:`ttc.io.kitti_odometry.pair_ego_speeds`);
 * a KITTI-**raw** drive with ``oxts/`` and frame ``timestamps.txt``: the mean GPS/IMU forward
   speed ``vf`` over the pair's interval (:func:`ttc.io.oxts.pair_speeds`);
+* a ROS 2 bag: the distance between the ego poses (``/tf`` or an Odometry topic) at the
+  pair's camera stamps over their interval (:func:`ttc.io.bag_recording.pair_ego_speeds`);
 * otherwise (the Udacity copy of drive 0052, a raw drive without ``oxts/``): NaN.
 """
 
@@ -17,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ttc.io import kitti_odometry, oxts
+from ttc.io import bag_recording, kitti_odometry, oxts
+from ttc.io.ros2_bag import is_bag
 
 #: The per-pair column :func:`with_ego_speed` adds (m/s).
 EGO_SPEED = "ego_speed_mps"
@@ -43,6 +46,9 @@ def pair_ego_speeds(
     numpy.ndarray
         (P,) float, m/s; NaN where unknown.
     """
+    if is_bag(sequence_dir):
+        prev, curr = pairs["prev_frame"].to_numpy(), pairs["frame"].to_numpy()
+        return bag_recording.pair_ego_speeds(bag_recording.as_source(sequence_dir), prev, curr)
     speeds = kitti_odometry.pair_ego_speeds(sequence_dir, pairs)
     if speeds is not None:
         return speeds
@@ -71,6 +77,6 @@ def input_files(sequence_dir: Path | str, frame_ns: np.ndarray | None, indices: 
     reads (some may not exist): the oxts files of a KITTI-raw drive
     (:func:`ttc.io.oxts.input_files`); none for a KITTI-odometry sequence, whose poses are
     among :func:`ttc.io.kitti_odometry.layout_files`."""
-    if kitti_odometry.is_odometry_sequence(sequence_dir):
+    if is_bag(sequence_dir) or kitti_odometry.is_odometry_sequence(sequence_dir):
         return []
     return oxts.input_files(sequence_dir, frame_ns, indices)

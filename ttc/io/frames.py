@@ -28,8 +28,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from ttc.io import ego_motion, kitti_odometry
+from ttc.io import bag_recording, ego_motion, kitti_odometry
 from ttc.io.frame_errors import FrameDataError
+from ttc.io.ros2_bag import BagMessage, is_bag
 from ttc.io.timestamps import MISSING_NS, check_clocks_agree, read_times_ns
 
 IMAGE_DIR = Path("image_02") / "data"
@@ -50,8 +51,12 @@ class LidarScan:
         return len(self.points)
 
 
-def read_lidar_scan(path: Path | str) -> LidarScan:
-    """Read a KITTI ``.bin`` scan; non-finite records are dropped and counted."""
+def read_lidar_scan(path: Path | str | BagMessage) -> LidarScan:
+    """Read a KITTI ``.bin`` scan (or a bag's ``PointCloud2`` message,
+    :func:`ttc.io.bag_recording.read_scan`); non-finite records are dropped and counted."""
+    if isinstance(path, BagMessage):
+        points, n_dropped = bag_recording.read_scan(path)
+        return LidarScan(points=points, path=path.source.path, n_dropped=n_dropped)
     path = Path(path)
     if not path.is_file():
         raise FrameDataError(path, "lidar scan not found")
@@ -69,8 +74,10 @@ def read_lidar_scan(path: Path | str) -> LidarScan:
     return LidarScan(points=points, path=path, n_dropped=n_dropped)
 
 
-def read_image(path: Path | str) -> np.ndarray:
-    """Read an 8-bit BGR image (H × W × 3)."""
+def read_image(path: Path | str | BagMessage) -> np.ndarray:
+    """Read an 8-bit BGR image (H × W × 3) from a file or a bag's camera message."""
+    if isinstance(path, BagMessage):
+        return bag_recording.read_image(path)
     path = Path(path)
     if not path.is_file():
         raise FrameDataError(path, "image not found")
@@ -82,16 +89,20 @@ def read_image(path: Path | str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class FrameFiles:
-    """Paths of one frame's image and scan."""
+    """Paths of one frame's image and scan (a bag recording's: its two messages)."""
 
     index: int
-    image: Path
-    scan: Path
+    image: Path | BagMessage
+    scan: Path | BagMessage
 
 
 def frame_files(sequence_dir: Path | str, index: int) -> FrameFiles:
     """The image and scan paths of frame ``index`` (10-digit zero-padded names; a KITTI-odometry
-    sequence's 6-digit ``image_2/`` and ``velodyne/`` names, :mod:`ttc.io.kitti_odometry`)."""
+    sequence's 6-digit ``image_2/`` and ``velodyne/`` names, :mod:`ttc.io.kitti_odometry`; a
+    bag's camera message and its paired scan, :mod:`ttc.io.bag_recording`)."""
+    if is_bag(sequence_dir):
+        image, scan = bag_recording.frame_messages(bag_recording.as_source(sequence_dir), index)
+        return FrameFiles(index, image, scan)
     sequence_dir = Path(sequence_dir)
     if kitti_odometry.is_odometry_sequence(sequence_dir):
         image = kitti_odometry.image_path(sequence_dir, index)
@@ -104,11 +115,15 @@ def frame_files(sequence_dir: Path | str, index: int) -> FrameFiles:
     )
 
 
-def file_identity(path: Path | str) -> tuple[str, int, int]:
-    """(resolved path, size in bytes, mtime in ns): identifies a file's content for caching.
+def file_identity(path: Path | str | BagMessage) -> tuple[str, int, int]:
+    """(resolved path, size in bytes, mtime in ns): identifies a file's content for caching;
+    a bag message's: its bag files, topic and header stamp
+    (:func:`ttc.io.bag_recording.message_identity`).
 
     Raises :class:`FrameDataError` naming the file when it does not exist.
     """
+    if isinstance(path, BagMessage):
+        return bag_recording.message_identity(path)
     path = Path(path).resolve()
     try:
         stat = path.stat()
@@ -121,7 +136,9 @@ def file_identity(path: Path | str) -> tuple[str, int, int]:
 
 def recording_frames(sequence_dir: Path | str) -> list[int]:
     """Indices of the frames a recording holds (an image or a scan named ``NNNNNNNNNN``, or
-    ``NNNNNN`` in a KITTI-odometry sequence)."""
+    ``NNNNNN`` in a KITTI-odometry sequence; a bag's camera messages 0, 1, …)."""
+    if is_bag(sequence_dir):
+        return list(range(bag_recording.frame_count(bag_recording.as_source(sequence_dir))))
     sequence_dir = Path(sequence_dir)
     if kitti_odometry.is_odometry_sequence(sequence_dir):
         return kitti_odometry.frames_on_disk(sequence_dir)
@@ -141,8 +158,10 @@ def check_frame_range(sequence_dir: Path | str, indices: list[int]) -> None:
     A frame missing *inside* the recording is not refused here: it becomes a frame error of
     its pairs. The message names the frames that exist.
     """
-    sequence_dir = Path(sequence_dir)
     present = recording_frames(sequence_dir)
+    if not present and is_bag(sequence_dir):
+        raise FrameDataError(sequence_dir, "no camera messages")
+    sequence_dir = Path(sequence_dir)
     if not present:
         raise FrameDataError(sequence_dir / IMAGE_DIR, "no frames (NNNNNNNNNN.png / .bin) found")
     if indices and max(indices) > present[-1]:
@@ -159,7 +178,9 @@ TIMESTAMP_FILES = (LIDAR_DIR.parent / "timestamps.txt", IMAGE_DIR.parent / "time
 
 def timestamps_file(sequence_dir: Path | str) -> Path | None:
     """The timestamps file :func:`read_frame_times` takes dt from (lidar preferred; a
-    KITTI-odometry sequence's ``times.txt``), or None."""
+    KITTI-odometry sequence's ``times.txt``), or None (a bag: its path)."""
+    if is_bag(sequence_dir):
+        return Path(sequence_dir)
     if kitti_odometry.is_odometry_sequence(sequence_dir):
         path = kitti_odometry.times_file(sequence_dir)
         return path if path.is_file() else None
@@ -180,7 +201,11 @@ def frame_clock_ns(sequence_dir: Path | str) -> np.ndarray | None:
     returned (KITTI triggers the camera from the lidar's rotation). When one is missing, the
     other alone is used. Raises :class:`FrameDataError` naming the file and line for a
     malformed line, times that are not strictly increasing, and clocks that disagree.
+    A bag's frames: its camera messages' header stamps
+    (:func:`ttc.io.bag_recording.frame_times`, read on demand).
     """
+    if is_bag(sequence_dir):
+        return bag_recording.frame_times(bag_recording.as_source(sequence_dir), seconds=False)
     sequence_dir = Path(sequence_dir)
     if kitti_odometry.is_odometry_sequence(sequence_dir):
         return None
@@ -199,8 +224,11 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
     no timestamps file. A blank line is a missing frame: its time is NaN (its pairs become
     frame errors, :func:`missing_time_errors`), and the times count from the first frame
     that has one. Values are rounded to the nanosecond of the file. A KITTI-odometry
-    sequence's times come from its ``times.txt`` (:func:`ttc.io.kitti_odometry.read_times`).
+    sequence's times come from its ``times.txt`` (:func:`ttc.io.kitti_odometry.read_times`);
+    a bag's from its camera messages' header stamps (read on demand).
     """
+    if is_bag(sequence_dir):
+        return bag_recording.frame_times(bag_recording.as_source(sequence_dir))
     sequence_dir = Path(sequence_dir)
     if kitti_odometry.is_odometry_sequence(sequence_dir):
         return kitti_odometry.read_times(sequence_dir)
@@ -217,7 +245,10 @@ def read_frame_times(sequence_dir: Path | str) -> np.ndarray | None:
 def missing_time_errors(sequence_dir: Path | str, indices: list[int]) -> dict[int, Exception]:
     """A :class:`FrameDataError` for each frame of ``indices`` whose line in the recording's
     timestamps file (:func:`timestamps_file`) is blank; the pairs of such a frame become
-    ``frame_error`` rows. Empty when the recording has no timestamps."""
+    ``frame_error`` rows. Empty when the recording has no timestamps. A bag's: each camera
+    message without a scan within the tolerance (:func:`ttc.io.bag_recording.unpaired_errors`)."""
+    if is_bag(sequence_dir):
+        return bag_recording.unpaired_errors(bag_recording.as_source(sequence_dir), indices)
     times = read_frame_times(sequence_dir)
     if times is None:
         return {}
@@ -301,7 +332,7 @@ def read_truth(sequence_dir: Path | str) -> pd.DataFrame | None:
     """The recording's truth table (``frame`` and :data:`TRUTH_COLUMNS`), None when it has no
     :data:`TRUTH_FILE`; :class:`FrameDataError` naming the file when a column is missing."""
     path = Path(sequence_dir) / TRUTH_FILE
-    if not path.is_file():
+    if is_bag(sequence_dir) or not path.is_file():
         return None
     try:
         table = pd.read_csv(path)
