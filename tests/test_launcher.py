@@ -1,21 +1,29 @@
 """The launcher's workers get every job's config from the sweep's composer, exactly as Hydra
-composes it; a dead worker is named; the workers end with the sweep."""
+composes it; a dead worker is named; a worker killed mid-job costs no setting; the workers end
+with the sweep."""
 
 from __future__ import annotations
 
 import contextlib
 import itertools
 import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
+import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from experiments.config import register_configs
+from experiments.store import RUNS_FILE
 from experiments.sweep.compose import Composer, variant_jobs
 from experiments.sweep.sweeper import group_combination_jobs, validation_jobs
-from experiments.sweep.workers import shut_down_workers, worker_death
+from experiments.sweep.workers import STARTED_DIR, shut_down_workers, worker_death
 from tests.conftest import PROJECT_ROOT
 
 
@@ -179,3 +187,52 @@ def test_the_jobs_are_hydras_basic_sweepers(loader_and_master, max_batch_size) -
         overrides = parser.parse_overrides(args)
         expected = BasicSweeper.split_arguments(overrides, max_batch_size)
         assert batches(expand(overrides), max_batch_size) == expected, args
+
+
+def _kill_first_job(started: Path, proc: subprocess.Popen) -> int:
+    """SIGKILL the worker of the first job to start (its marker in ``started`` holds its pid)
+    while it computes; its pid (0 when the sweep ended first)."""
+    deadline = time.time() + 300
+    while proc.poll() is None and time.time() < deadline:
+        for marker in started.glob("*") if started.is_dir() else []:
+            with contextlib.suppress(OSError, ValueError):  # just created or just removed
+                pid = int(marker.read_text())
+                os.kill(pid, signal.SIGKILL)
+                return pid
+        time.sleep(0.01)
+    return 0
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_job_costs_no_setting(tmp_path: Path) -> None:
+    """Issue 32: SIGKILL (the OOM killer's signal) to the worker of the first job while jobs
+    are still waiting: the jobs that were running are re-run alone, the waiting ones go on in a
+    joblib pool, every setting ends ``ok``. The re-runs' one-worker pool once became the pool
+    joblib reused for the waiting jobs: ``AttributeError: '_ReusablePoolExecutor' object has
+    no attribute '_temp_folder_manager'``, a traceback and exit 1."""
+    psutil = pytest.importorskip("psutil")
+    env = {**os.environ, "TTC_RESULTS_DIR": str(tmp_path / "sweeps"),
+           "TTC_CACHE_DIR": str(tmp_path / "cache")}  # fmt: skip
+    args = ["-m", "detector=fast,orb", "descriptor=brief,orb", "dataset.last=3",
+            "cache.enabled=false", "hydra.launcher.n_jobs=2", "sweep_name=killed"]  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "experiments.run", *args], cwd=PROJECT_ROOT, env=env, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    sweep = tmp_path / "sweeps" / "killed"
+    killed = _kill_first_job(sweep / STARTED_DIR, proc)
+    seen: set = set()  # every process the sweep started, the re-runs' worker included
+    while proc.poll() is None:
+        with contextlib.suppress(psutil.NoSuchProcess):
+            seen.update(psutil.Process(proc.pid).children(recursive=True))
+        time.sleep(0.1)
+    out, err = proc.communicate(timeout=300)
+    assert killed, err[-3000:]
+    assert proc.returncode == 0, err[-3000:]
+    assert "Traceback" not in err, err[-3000:]
+    assert "worker process died (SIGKILL(-9)): killed by a signal" in out  # the reason, logged
+    assert "re-running its jobs [0" in out
+    runs = pd.read_parquet(sweep / RUNS_FILE)
+    assert len(runs) == 4 and (runs["status"] == "ok").all(), runs[["status", "message"]]
+    _, alive = psutil.wait_procs(list(seen), timeout=10)
+    assert not alive, f"processes left behind: {alive}"

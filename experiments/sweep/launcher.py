@@ -14,9 +14,12 @@ folders, logs, callbacks) as Hydra's joblib launcher, but:
 
 A worker that dies (a signal: out of memory, a crash in native code) breaks a joblib pool and
 would end the sweep with ``TerminatedWorkerError``. Instead each job that was running then is
-run again alone in a fresh one-worker pool; one that dies there too is reported as failed with
-the signal (``JobStatus.FAILED``; the callbacks' ``on_job_end`` records it), and a batch that
-dies is run again a setting at a time.
+run again alone in a one-worker pool of its own; one that dies there too is reported as failed
+with the signal (``JobStatus.FAILED``; the callbacks' ``on_job_end`` records it), and a batch
+that dies is run again a setting at a time. The jobs not started yet then go on in joblib's
+pool. The one-worker pool is never joblib's reusable one: loky would hand a pool made outside
+joblib to the next ``Parallel``, which fails on it (``'_ReusablePoolExecutor' object has no
+attribute '_temp_folder_manager'``, issue 32).
 
 ``hydra_plugins/ttc_launcher`` registers it with Hydra (``hydra/launcher=ttc_joblib``).
 """
@@ -37,7 +40,7 @@ from typing import Any
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, setup_globals
 from hydra_plugins.hydra_joblib_launcher.joblib_launcher import JoblibLauncher
 from joblib import Parallel, delayed, effective_n_jobs
-from joblib.externals.loky import get_reusable_executor
+from joblib.externals.loky import ProcessPoolExecutor
 from joblib.externals.loky.backend import resource_tracker as loky_resource_tracker
 from joblib.externals.loky.process_executor import TerminatedWorkerError
 from omegaconf import DictConfig, open_dict
@@ -83,6 +86,7 @@ class SweepLauncher(JoblibLauncher):
         self._shared: tuple[str, bytes] = ("", b"")
         self._composer: Composer | None = None
         self._warming: threading.Thread | None = None
+        self._lone: ProcessPoolExecutor | None = None
 
     def _state(self, started: Path) -> SweepState:
         """The sweep state the jobs get (the payload pickled once per sweep)."""
@@ -146,6 +150,7 @@ class SweepLauncher(JoblibLauncher):
 
     def stop(self) -> None:
         """End the pool's workers at once, in the middle of their jobs (Ctrl-C)."""
+        self._end_lone(kill=True)
         shut_down_workers(joblib_options(self.joblib).get("n_jobs"), wait=True, kill=True)
 
     def launch(
@@ -179,8 +184,13 @@ class SweepLauncher(JoblibLauncher):
                 left = [i for i in pending if i not in results]
                 running = [i for i in left if (started / str(i)).exists()] or left[:1]
                 log.warning(f"{worker_death(exc)}; re-running its jobs {running} one by one")
-                for i in running:
-                    results[i] = self._alone(i, jobs[i], state)
+                try:
+                    for i in running:
+                        results[i] = self._alone(i, jobs[i], state)
+                except BaseException:  # Ctrl-C: its worker ends at once
+                    self._end_lone(kill=True)
+                    raise
+                self._end_lone()
         shutil.rmtree(started, ignore_errors=True)
         shut_down_workers(options.get("n_jobs"), wait=False)
         return [results[i] for i in sorted(jobs)]
@@ -189,11 +199,13 @@ class SweepLauncher(JoblibLauncher):
         """Run one job alone in a fresh worker; a job that kills it is reported FAILED. A
         batch that kills it is run again a setting at a time (each alone), so the setting that
         dies costs only itself."""
-        executor = get_reusable_executor(max_workers=1, kill_workers=True)
+        if self._lone is None:
+            self._lone = ProcessPoolExecutor(max_workers=1)
         try:
-            return executor.submit(execute_job, idx, overrides, state).result()
+            return self._lone.submit(execute_job, idx, overrides, state).result()
         except TerminatedWorkerError as exc:
             message = worker_death(exc)
+            self._end_lone()  # broken: the next job alone gets a fresh pool
         members = self._batch_members(overrides)
         if members:
             log.warning(f"job #{idx} (a batch of {len(members)}): {message}; one by one now")
@@ -202,6 +214,13 @@ class SweepLauncher(JoblibLauncher):
             return failed[0] if failed else returns[0]
         log.error(f"job #{idx} ({' '.join(overrides)}): {message}")
         return self._died(idx, overrides, message)
+
+    def _end_lone(self, kill: bool = False) -> None:
+        """Stop the one-worker pool of the jobs run alone, if there is one (waiting for its
+        worker to exit; ``kill``: in the middle of its job)."""
+        lone, self._lone = self._lone, None
+        if lone is not None:
+            lone.shutdown(wait=True, kill_workers=kill)
 
     def _died(self, idx: int, overrides: list[str], message: str) -> JobReturn:
         """The FAILED return of a job whose worker died, told to the callbacks."""
