@@ -26,9 +26,11 @@ def _git(*args: str) -> str | None:
 
 @functools.cache
 def code_version() -> dict[str, str | bool | None]:
-    """Git commit of the project and whether the work tree has uncommitted changes."""
+    """Git commit of the project and whether the work tree has uncommitted changes to anything
+    but the committed reports (``results/``, written by the reports themselves: regenerating
+    one report must not make the next one's code version dirty)."""
     commit = _git("rev-parse", "HEAD")
-    status = _git("status", "--porcelain", "--untracked-files=no")
+    status = _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!results")
     return {"git_commit": commit, "git_dirty": bool(status) if status is not None else None}
 
 
