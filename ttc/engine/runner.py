@@ -204,7 +204,7 @@ def pair_detail(
         lead_box=detail["lead_box"],
         kept=detail.get("kept", empty),
         removed=detail.get("removed", empty),
-        rows=finish_rows(settings, rows.drop(columns=MEMBER)),
+        rows=with_truth(finish_rows(settings, rows.drop(columns=MEMBER)), frames.sequence_dir),
     )
 
 
