@@ -40,14 +40,18 @@ def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
 
 def recording_entries(runs: pd.DataFrame) -> set[str]:
     """The setting entries (dotted keys) that belong to the recording, not to the setting:
-    those with one value among each recording's runs, except the axes' choices
-    (``detector.name``, ...). The dataset (name, frames, drive) is one; so is what a recording
-    sets for itself (``conf/dataset/kitti_odometry.yaml``: its lidar crop, its camera pair
-    distance); an entry a sweep varies on any recording is a setting's."""
+    those with one value among each recording's runs of one choice on every axis
+    (``detector.name``, ...), except the choices themselves. The dataset (name, frames, drive)
+    is one; so is what a recording sets for itself (``conf/dataset/kitti_odometry.yaml``: its
+    lidar crop, its camera pair distance), also where an option's own value differs from
+    another's (``camera_ttc=vertical_ratio``'s 20 px beside ``median_ratio``'s 100 px on drive
+    0052, 0 px for both on sequence 04); an entry a sweep varies within one choice is a
+    setting's."""
     flat = pd.DataFrame([_flat(json.loads(c)) for c in runs["config"]], index=runs.index)
-    per_recording = flat.groupby(recording_of(runs).to_numpy(), dropna=False)
-    constant = per_recording.nunique(dropna=False).le(1).all()
-    choices = {f"{axis}.name" for axis in SETTING_AXES if axis != "dataset"}
+    choices = [f"{axis}.name" for axis in SETTING_AXES if axis != "dataset"]
+    present = [c for c in choices if c in flat]
+    keys = [recording_of(runs).to_numpy(), *(flat[c].to_numpy() for c in present)]
+    constant = flat.groupby(keys, dropna=False).nunique(dropna=False).le(1).all()
     return {key for key, fixed in constant.items() if fixed and key not in choices}
 
 

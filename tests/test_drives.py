@@ -173,3 +173,27 @@ def test_the_cross_recording_page(two_drive_sweep, tmp_path) -> None:
     assert "best (median)" in lidar or "best (closest)" in lidar
     assert "## false alarms without a lead vehicle" in text
     assert (tmp_path / "html" / "recordings.html").is_file()
+
+
+def test_a_setting_spans_recordings_where_an_options_value_is_the_recordings() -> None:
+    """``camera_ttc=vertical_ratio`` (min_dist 20 px) beside ``median_ratio`` (100 px) on drive
+    0052, both at 0 px on sequence 04 (its dataset config sets it): each choice is one
+    setting on both recordings; a value swept within one choice stays the setting's."""
+    import json
+
+    from experiments.recordings import setting_of
+
+    def config(seq: str, camera: str, min_dist: float, z: float) -> str:
+        return json.dumps({"dataset": {"sequence": seq},
+                           "camera_ttc": {"name": camera, "min_dist": min_dist},
+                           "keypoint_filter": {"name": "zscore", "z": z}})  # fmt: skip
+
+    rows = [(f"r{i}", config(seq, cam, dist if seq == "kitti/2011_09_26" else 0.0, z))
+            for i, (seq, (cam, dist), z) in enumerate(
+                (s, c, z) for s in ("kitti/2011_09_26", "kitti_odometry/sequences/04")
+                for c in (("median_ratio", 100.0), ("vertical_ratio", 20.0)) for z in (2.0, 3.0)
+            )]  # fmt: skip
+    runs = pd.DataFrame(rows, columns=["run_id", "config"])
+    ids = setting_of(runs)
+    assert ids.nunique() == 4  # 2 camera choices x 2 z values, each on both recordings
+    assert (ids.iloc[:4].to_numpy() == ids.iloc[4:].to_numpy()).all()
