@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiments.recordings import setting_of
 from experiments.reference_store import object_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
@@ -26,7 +27,7 @@ from ttc.evaluation.object_errors import (
 )
 from ttc.evaluation.object_reference import REFERENCE_OBJECT_COLUMNS
 from ttc.evaluation.ttc_bins import OBJECT_TTC_BINS
-from ttc.settings import AXES
+from ttc.settings import AXES, only_sensor_axes
 
 #: Settings shown in each best-of table.
 BEST = 5
@@ -38,10 +39,15 @@ def reference_objects_table(reference: pd.DataFrame) -> pd.DataFrame:
     return reference[list(REFERENCE_OBJECT_COLUMNS)].sort_values(["frame", "track_id"])
 
 
-def _labels(runs: pd.DataFrame) -> pd.Series:
-    """Setting label by run id."""
-    labels = ev.setting_labels(runs, [a for a in AXES if a != "dataset"])
-    return pd.Series(labels.to_numpy(), index=runs["run_id"].to_numpy())
+def camera_runs(runs: pd.DataFrame) -> pd.Series:
+    """One ok run per camera setting (settings that differ only in a lidar or fused option
+    give the same camera TTC: counted once, as in the cross-recording ranking), labelled by
+    the axes that vary among them; a Series of labels by run id."""
+    ok = runs[runs["status"] == "ok"]
+    ok = ok[~setting_of(ok, "camera").duplicated().to_numpy()]
+    other = {*only_sensor_axes("lidar"), *only_sensor_axes("fused"), "dataset"}
+    labels = ev.setting_labels(ok, [a for a in AXES if a not in other])
+    return pd.Series(labels.to_numpy(), index=ok["run_id"].to_numpy())
 
 
 def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.DataFrame:
@@ -51,9 +57,9 @@ def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.Da
     (:func:`ttc.evaluation.object_errors.track_bootstrap_ranks`)."""
     out.mkdir(parents=True, exist_ok=True)
     write_csv(reference_objects_table(reference), out / "reference_objects.csv")
-    ok = data.runs[data.runs["status"] == "ok"]
-    judged = judge_objects(data.frames[data.frames["run_id"].isin(ok["run_id"])], reference)
-    judged["setting"] = judged["run_id"].map(_labels(ok))
+    labels = camera_runs(data.runs)
+    judged = judge_objects(data.frames[data.frames["run_id"].isin(labels.index)], reference)
+    judged["setting"] = judged["run_id"].map(labels)
     write_csv(object_metrics(judged, ["setting", "role", "ttc_bin"]), out / "objects.csv")
     ranking = track_bootstrap_ranks(judged)
     lead = track_bootstrap_ranks(judged[judged["role"] == "lead"])
