@@ -96,16 +96,18 @@ def breakdown(judged: pd.DataFrame, sensor: str = "camera") -> pd.DataFrame:
     t["bearing_deg"] = t["bearing_deg"].abs()
     parts = []
     for quantity, edges in BREAKDOWN_EDGES.items():
-        bins = pd.cut(t[quantity], list(edges), right=False)
-        parts.append(_summary(t, bins.astype(str), quantity))
-    parts.append(_summary(t, t["ttc_bin"], "ttc_bin"))
+        parts.append(_summary(t, pd.cut(t[quantity], list(edges), right=False), quantity))
+    ranges = pd.Categorical(t["ttc_bin"], categories=OBJECT_TTC_BINS, ordered=True)
+    parts.append(_summary(t, pd.Series(ranges, index=t.index), "ttc_bin"))
     return pd.concat(parts, ignore_index=True)
 
 
 def _summary(t: pd.DataFrame, key: pd.Series, quantity: str, sensor: str = "camera"):
-    g = t.groupby(key, sort=False)
+    """One row per range of ``key`` (a categorical, in its order; empty ranges left out)."""
+    g = t.groupby(key, observed=True, sort=True)
     out = pd.DataFrame({"n_pairs": g.size(), "medae_rel": g[f"{sensor}_rel_err"].median(),
                         "invalid_rate": g[f"{sensor}_invalid"].mean()})  # fmt: skip
+    out.index = out.index.astype(str)
     out.index.name = "range"
     return out.reset_index().assign(quantity=quantity)[
         ["quantity", "range", "n_pairs", "medae_rel", "invalid_rate"]
