@@ -16,7 +16,7 @@ from experiments.reference_store import object_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData, setting_of_run
-from experiments.report.plots import plot_objects, save_figure
+from experiments.report.plots import plot_breakdown, plot_objects, save_figure
 from ttc import evaluation as ev
 from ttc.evaluation.object_errors import (
     breakdown,
@@ -52,7 +52,7 @@ def camera_runs(runs: pd.DataFrame) -> pd.Series:
 
 def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.DataFrame:
     """Write ``reference_objects.csv``, ``objects.csv``, ``objects_ranking.csv``,
-    ``objects.md`` and ``objects.png`` of the runs of ``data`` (one recording) judged against
+    ``objects.md``, ``objects.png`` and ``objects_breakdown.png`` of the runs of ``data`` (one recording) judged against
     ``reference`` (its objects' reference) into ``out``; returns the all-object ranking
     (:func:`ttc.evaluation.object_errors.track_bootstrap_ranks`)."""
     out.mkdir(parents=True, exist_ok=True)
@@ -68,6 +68,8 @@ def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.Da
                             ranking.set_index("setting")["score"])  # fmt: skip
     write_text(_page(data, reference, judged, ranking, lead, tau), out / "objects.md")
     save_figure(plot_objects(reference, judged, ranking), out / "objects.png")
+    if judged["judged"].any():
+        save_figure(plot_breakdown(breakdown(judged)), out / "objects_breakdown.png")
     return ranking
 
 
@@ -130,6 +132,8 @@ def _page(
         "does not scale like the distance of its nearest face.",
         "",
         markdown_table(breakdown(judged)) if judged["judged"].any() else "Nothing judged.",
+        "",
+        "![where camera TTC breaks down](objects_breakdown.png)" if judged["judged"].any() else "",
         "",
         "![every track](objects.png)",
         "",

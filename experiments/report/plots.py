@@ -262,3 +262,26 @@ def plot_objects(reference: pd.DataFrame, judged: pd.DataFrame, ranking: pd.Data
     top.set_title(title, fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def plot_breakdown(table: pd.DataFrame) -> plt.Figure:
+    """Where camera TTC breaks down: one panel per quantity of
+    :func:`ttc.evaluation.object_errors.breakdown` (distance, box width, bearing, TTC range),
+    its median relative error (bars, left axis, clipped at 2) and invalid rate (dots, right
+    axis, 0–1) per range."""
+    quantities = list(dict.fromkeys(table["quantity"]))
+    fig, axes = plt.subplots(1, len(quantities), figsize=(3.2 * len(quantities), 3.2))
+    for ax, quantity in zip(np.atleast_1d(axes), quantities, strict=True):
+        part = table[table["quantity"] == quantity]
+        x = np.arange(len(part))
+        ax.bar(x, part["medae_rel"].clip(upper=2).fillna(0), color="tab:blue", alpha=0.7)
+        ax.set_ylim(0, 2)
+        ax.set_xticks(x, part["range"], rotation=45, ha="right", fontsize=7)
+        ax.set_title(quantity, fontsize=9)
+        twin = ax.twinx()
+        twin.plot(x, part["invalid_rate"], "o", color="tab:red")
+        twin.set_ylim(0, 1.05)
+    np.atleast_1d(axes)[0].set_ylabel("median relative error (bars)")
+    twin.set_ylabel("invalid rate (dots)")
+    fig.tight_layout()
+    return fig
