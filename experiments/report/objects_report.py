@@ -24,6 +24,7 @@ from ttc.evaluation.object_errors import (
     object_metrics,
     ranking_agreement,
     track_bootstrap_ranks,
+    track_table,
 )
 from ttc.evaluation.object_reference import REFERENCE_OBJECT_COLUMNS
 from ttc.evaluation.ttc_bins import OBJECT_TTC_BINS
@@ -123,6 +124,14 @@ def _page(
         markdown_table(lead.head(BEST)) if not lead.empty else "No lead pair judged.",
         "",
         _tau_line(tau),
+        "",
+        "## Per track",
+        "",
+        "Every judged track: its reference distance range (m), the pairs judged over every "
+        "setting, their median relative camera TTC error, median motion-in-depth error "
+        "(10⁻⁴) and invalid rate; nearest first.",
+        "",
+        markdown_table(track_table(judged, reference)) if judged["judged"].any() else "None.",
         "",
         "## Where camera TTC breaks down",
         "",

@@ -14,13 +14,14 @@ import numpy as np
 import pandas as pd
 from scipy.stats import kendalltau
 
+from ttc.evaluation.errors import estimated_ratio, mid_error
 from ttc.evaluation.ttc_bins import OBJECT_TTC_BIN_EDGES_S, OBJECT_TTC_BINS, ttc_bin
 
 #: Sensors judged per object (their TTC columns are ``ttc_<sensor>``).
 OBJECT_SENSORS: tuple[str, ...] = ("camera", "lidar")
 #: Columns of the reference carried onto each judged row.
 _REFERENCE = ["frame", "box", "track_id", "role", "distance_m", "closing_speed_mps",
-              "ttc_ref_s", "ttc_ref_sd_s", "judgeable", "bearing_deg"]  # fmt: skip
+              "ratio_ref", "ttc_ref_s", "ttc_ref_sd_s", "judgeable", "bearing_deg"]  # fmt: skip
 
 
 def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
@@ -29,7 +30,8 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
     row: the reference's columns (``ref_track_id``, ``role``, ``distance_m``, ``ttc_ref_s``,
     ``judgeable``, ``bearing_deg``), ``box_match_ok``, ``ttc_bin`` (the object ranges
     :data:`ttc.evaluation.ttc_bins.OBJECT_TTC_BINS`), and per sensor ``{s}_rel_err`` (NaN
-    unless judgeable and valid), ``{s}_invalid`` and ``{s}_score`` (the relative error capped
+    unless judgeable and valid), ``{s}_invalid``, ``{s}_mid`` (the motion-in-depth error
+    against the object's distance ratio, 10⁻⁴, as the lead's) and ``{s}_score`` (the relative error capped
     at 1, an invalid estimate 1: bounded, so a setting invalid on half the pairs is not tied
     with every other one at +inf; the all-object ranking takes its mean)."""
     pairs = rows[(rows["prev_box"] >= 0) & (rows["curr_box"] >= 0)]
@@ -48,6 +50,7 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
         with np.errstate(invalid="ignore", divide="ignore"):
             rel = np.abs(ttc - out["ttc_ref_s"].to_numpy(dtype=float)) / out["ttc_ref_s"]
         out[f"{s}_invalid"] = invalid
+        out[f"{s}_mid"] = mid_error(estimated_ratio(out, s), out["ratio_ref"])
         out[f"{s}_rel_err"] = np.where(judged & ~invalid, rel, np.nan)
         capped = np.where(invalid, 1.0, np.minimum(rel, 1.0))
         out[f"{s}_score"] = np.where(judged, capped, np.nan)
@@ -59,7 +62,8 @@ def object_metrics(judged: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     """Per group of ``by`` (e.g. ``["run_id", "role", "ttc_bin"]``) over the judged pairs of
     :func:`judge_objects`: ``n_pairs``, ``n_tracks`` and per sensor ``{s}_medae_rel`` (median
     relative error of the valid estimates), ``{s}_invalid_rate`` (0–1) and ``{s}_score`` (the
-    mean capped error, an invalid estimate 1: the ranking key, 0–1, lower is better)."""
+    mean capped error, an invalid estimate 1: the ranking key, 0–1, lower is better) and
+    ``{s}_mid_median`` (10⁻⁴)."""
     t = judged[judged["judged"]]
     g = t.groupby(by, observed=True)
     out = pd.DataFrame({"n_pairs": g.size(), "n_tracks": g["ref_track_id"].nunique()})
@@ -67,6 +71,7 @@ def object_metrics(judged: pd.DataFrame, by: list[str]) -> pd.DataFrame:
         out[f"{s}_medae_rel"] = g[f"{s}_rel_err"].median()
         out[f"{s}_invalid_rate"] = g[f"{s}_invalid"].mean()
         out[f"{s}_score"] = g[f"{s}_score"].mean()
+        out[f"{s}_mid_median"] = g[f"{s}_mid"].median()
     return out.reset_index()
 
 
@@ -154,3 +159,23 @@ def track_bootstrap_ranks(
                         "rank": pd.Series(point).rank(method="min").to_numpy(),
                         "rank_lo": lo, "rank_hi": hi})  # fmt: skip
     return out.sort_values(["rank", "setting"], ignore_index=True)
+
+
+def track_table(judged: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
+    """Per judged track (``ref_track_id``): ``role``, ``class``, its frames, the reference
+    distance range (m), the pairs judged (each setting's), the median relative camera TTC error
+    and motion-in-depth error (10⁻⁴) over every setting, and the invalid rate; nearest first."""
+    t = judged[judged["judged"]]
+    if t.empty:
+        return pd.DataFrame()
+    ref = reference.groupby("track_id").agg(
+        role=("role", "first"), cls=("class", "first"), first=("frame", "min"),
+        last=("frame", "max"), d_min=("distance_m", "min"), d_max=("distance_m", "max"),
+    )  # fmt: skip
+    g = t.groupby("ref_track_id")
+    out = pd.DataFrame({"pairs": g.size(), "camera_medae_rel": g["camera_rel_err"].median(),
+                        "camera_mid_median": g["camera_mid"].median(),
+                        "camera_invalid_rate": g["camera_invalid"].mean()})  # fmt: skip
+    out = ref.join(out, how="inner").rename(columns={"cls": "class"})
+    out.index.name = "track_id"
+    return out.sort_values("d_min").reset_index()

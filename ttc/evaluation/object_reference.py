@@ -161,14 +161,14 @@ def _track_reference(track: pd.DataFrame, times: np.ndarray) -> pd.DataFrame:
     table = track[["frame", "distance_m"]].set_index("frame")
     if len(measured) < 2:
         out = table.assign(distance_smooth_m=np.nan, distance_sd_m=np.nan,
-                           closing_speed_mps=np.nan, ttc_ref_s=np.nan, ttc_ref_sd_s=np.nan,
-                           judgeable=False)  # fmt: skip
+                           closing_speed_mps=np.nan, ratio_ref=np.nan, ttc_ref_s=np.nan,
+                           ttc_ref_sd_s=np.nan, judgeable=False)  # fmt: skip
         return out.reset_index()
     lo, hi = int(measured["frame"].min()), int(measured["frame"].max())
     span = table.loc[lo:hi]
     ref = segment_reference(span, times[lo : hi + 1], WINDOW, POLYORDER, MIN_CLOSING_SPEED_MPS)
-    keep = ["frame", "distance_smooth_m", "distance_sd_m", "closing_speed_mps", "ttc_ref_s",
-            "ttc_ref_sd_s", "judgeable"]  # fmt: skip
+    keep = ["frame", "distance_smooth_m", "distance_sd_m", "closing_speed_mps", "ratio_ref",
+            "ttc_ref_s", "ttc_ref_sd_s", "judgeable"]  # fmt: skip
     out = table.reset_index().merge(ref[keep], on="frame", how="left")
     out["judgeable"] = out["judgeable"].fillna(False).astype(bool)
     return out
@@ -191,7 +191,8 @@ def object_reference(
     Returns one row per box: the input columns, ``track_id``, ``role``, ``edge_cut`` (box at
     the image's left/right edge: its distance unused), ``distance_raw_m`` (the measured
     nearest face), ``distance_m`` (smoothed, m), ``distance_sd_m``, ``closing_speed_mps``
-    (mean over the pair ending at the frame), ``ttc_ref_s`` (s; +inf when not closing),
+    (mean over the pair ending at the frame), ``ratio_ref`` (the pair's distance ratio
+    ``D(k−1) / D(k)``), ``ttc_ref_s`` (s; +inf when not closing),
     ``ttc_ref_sd_s`` and ``judgeable`` (as the lead's reference).
     """
     boxes = boxes.reset_index(drop=True).copy()
@@ -207,8 +208,8 @@ def object_reference(
         track["distance_m"] = drop_jumps(track, times)
         parts.append(_track_reference(track, times).assign(
             track_id=int(track["track_id"].iloc[0])))  # fmt: skip
-    ref_cols = ["distance_smooth_m", "distance_sd_m", "closing_speed_mps", "ttc_ref_s",
-                "ttc_ref_sd_s", "judgeable"]  # fmt: skip
+    ref_cols = ["distance_smooth_m", "distance_sd_m", "closing_speed_mps", "ratio_ref",
+                "ttc_ref_s", "ttc_ref_sd_s", "judgeable"]  # fmt: skip
     if parts:
         refs = pd.concat(parts)[["frame", "track_id", *ref_cols]]
     else:
