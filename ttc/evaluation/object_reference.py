@@ -21,7 +21,7 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 from ttc.evaluation.reference import MIN_CLOSING_SPEED_MPS, POLYORDER, WINDOW, segment_reference
-from ttc.steps.tracks import chain_tracks, track_key
+from ttc.steps.tracks import chain_tracks
 
 #: Least IoU (0–1) of two boxes of consecutive frames that are one object: a parked car
 #: passed at 10.7 m/s grows by ≤ 10 % a frame and keeps IoU ≥ 0.6 with its previous box.
@@ -77,20 +77,19 @@ def reference_tracks(boxes: pd.DataFrame) -> pd.Series:
     by_frame = {f: g.sort_values("box") for f, g in boxes.groupby("frame")}
     cols = ["box_x", "box_y", "box_w", "box_h"]
     pf, f_, pb, cb = [], [], [], []
-    for prev, curr in zip(frames[:-1], frames[1:], strict=True):
-        a, b = by_frame[prev], by_frame[curr]
+    for prev, curr in zip([None, *frames[:-1]], frames, strict=True):  # the first: no previous
+        b = by_frame[curr]
         matched = np.full(len(b), -1)
-        if curr == prev + 1:
+        if prev is not None and curr == prev + 1:
+            a = by_frame[prev]
             p, c = link_boxes(a[cols].to_numpy(), b[cols].to_numpy())
             matched[c] = a["box"].to_numpy()[p]
-        pf += [prev] * len(b)
+        pf += [curr - 1] * len(b)
         f_ += [curr] * len(b)
         pb += matched.tolist()
         cb += b["box"].tolist()
     ids = chain_tracks(np.array(pf), np.array(f_), np.array(pb), np.array(cb))
     key = dict(zip(zip(f_, cb, strict=True), ids.tolist(), strict=True))
-    first = by_frame[frames[0]] if frames else boxes.iloc[:0]
-    key.update({(int(frames[0]), int(b)): track_key(int(frames[0]), int(b)) for b in first["box"]})
     return pd.Series([key[(f, b)] for f, b in zip(boxes["frame"], boxes["box"], strict=True)],
                      index=boxes.index, dtype=np.int64)  # fmt: skip
 
@@ -116,13 +115,12 @@ def track_role(closing_mps: float, ego_mps: float, is_lead: bool) -> str:
     return "oncoming" if closing_mps > ego_mps else "same_direction"
 
 
-def raw_closing_speed(track: pd.DataFrame, times: np.ndarray) -> float:
-    """Median closing speed (m/s) of a track from its measured distances of consecutive frames
-    (``frame``, ``distance_raw_m``, ``edge_cut``): robust to a few jumps (a box that briefly
-    holds another car) that bend a smoothed curve; NaN without two consecutive measurements."""
-    t = track.sort_values("frame")
-    d = t["distance_raw_m"].where(~t["edge_cut"]).to_numpy(dtype=float)
-    f = t["frame"].to_numpy()
+def median_closing_speed(frames: np.ndarray, distances: np.ndarray, times: np.ndarray) -> float:
+    """Median closing speed (m/s) of a track from its distances (m, NaN: not measured) at
+    ``frames`` (ascending), over the pairs of consecutive frames: robust to a few jumps (a box
+    that briefly holds another car) that bend a smoothed curve; NaN without two consecutive
+    measurements. ``times``: seconds of every frame (index = frame)."""
+    d, f = np.asarray(distances, dtype=float), np.asarray(frames)
     consecutive = np.diff(f) == 1
     step = np.diff(times[f]) if len(f) > 1 else np.zeros(0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -139,14 +137,14 @@ JUMP_MADS = 3.0
 
 def drop_jumps(track: pd.DataFrame, times: np.ndarray) -> np.ndarray:
     """A track's usable distances (``distance_m``, m, NaN kept) with jumps set to NaN: the
-    residuals from the line of its median two-frame closing speed (:func:`raw_closing_speed`)
+    residuals from the line of its median two-frame closing speed (:func:`median_closing_speed`)
     beyond ``max(JUMP_MIN_M, JUMP_MADS · 1.4826 · MAD)``. The smoothing then interpolates
     those frames instead of bending through them."""
-    d = track["distance_m"].to_numpy(dtype=float)
-    speed = raw_closing_speed(track.assign(distance_raw_m=d, edge_cut=False), times)
+    d, frames = track["distance_m"].to_numpy(dtype=float), track["frame"].to_numpy()
+    speed = median_closing_speed(frames, d, times)
     if not np.isfinite(speed) or np.isfinite(d).sum() < 4:
         return d
-    t = times[track["frame"].to_numpy()]
+    t = times[frames]
     line = d + speed * t
     resid = line - np.nanmedian(line)
     mad = np.nanmedian(np.abs(resid - np.nanmedian(resid)))
@@ -202,9 +200,10 @@ def object_reference(
     boxes["distance_raw_m"] = boxes["distance_m"].astype(float)
     usable = boxes["distance_raw_m"].where(~boxes["edge_cut"])
     times = np.asarray(times, dtype=float)
-    parts = []
-    for _, track in boxes.assign(distance_m=usable).groupby("track_id", sort=True):
+    parts, closing = [], {}
+    for tid, track in boxes.assign(distance_m=usable).groupby("track_id", sort=True):
         track = track.sort_values("frame")
+        closing[tid] = median_closing_speed(track["frame"], track["distance_m"], times)
         track["distance_m"] = drop_jumps(track, times)
         parts.append(_track_reference(track, times).assign(
             track_id=int(track["track_id"].iloc[0])))  # fmt: skip
@@ -223,7 +222,6 @@ def object_reference(
         frames = track["frame"].to_numpy()
         v = ego[frames[frames < len(ego)]] if ego is not None else np.array([])
         ego_mps = float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan")
-        closing = raw_closing_speed(track, times)
-        roles[tid] = track_role(closing, ego_mps, bool(track["is_lead"].mean() > 0.5))
+        roles[tid] = track_role(closing[tid], ego_mps, bool(track["is_lead"].mean() > 0.5))
     out["role"] = out["track_id"].map(roles)
     return out.sort_values(["frame", "box"]).reset_index(drop=True)
