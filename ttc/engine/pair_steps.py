@@ -60,8 +60,13 @@ class PairSteps:
         curr: int,
         per_frame: dict[str, dict[int, Lookup]],
         match: Lookup,
+        frame_objects: dict[int, ObjectAssociation] | None = None,
     ) -> None:
+        """``frame_objects``: each frame's object association, shared by the pairs of a run
+        (a frame is the current one of a pair and the previous one of the next); None: this
+        pair's own."""
         self.frames, self.calib, self.dt, self.prev, self.curr = frames, calib, dt, prev, curr
+        self.frame_objects = {} if frame_objects is None else frame_objects
         self.per_frame, self.match = per_frame, match
         self.obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
         self.lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
@@ -137,17 +142,20 @@ class PairSteps:
         return self.assoc
 
     def _objects(self, s: Settings) -> dict[int, ObjectAssociation]:
-        """Every box's own lidar points per frame (:func:`associate_objects`), once per pair;
-        the time is added to the lane association's (the pair's ``ms_lidar``)."""
+        """Every box's own lidar points per frame (:func:`associate_objects`), once per frame
+        of the run (:attr:`frame_objects`); the time is added to the lane association's (the
+        pair's ``ms_lidar``)."""
         if self.object_assoc is None:
             lane, obj, velo_to_image = self.lane, self.obj, self.calib.velo_to_image
+            store = self.frame_objects
 
             def associate() -> dict[int, ObjectAssociation]:
-                return {
-                    i: associate_objects(lane[i]["object_points"], velo_to_image,
-                                         obj[i]["roi"], s.lidar_shrink, s.object_lidar)
-                    for i in (self.prev, self.curr)
-                }  # fmt: skip
+                for i in (self.prev, self.curr):
+                    if i not in store:
+                        store[i] = associate_objects(lane[i]["object_points"], velo_to_image,
+                                                     obj[i]["roi"], s.lidar_shrink,
+                                                     s.object_lidar)  # fmt: skip
+                return {i: store[i] for i in (self.prev, self.curr)}
 
             self.object_assoc, self.ms_objects = _timed(associate)
         return self.object_assoc
