@@ -242,9 +242,12 @@ def merge_is_current(sweep_dir: Path, records: list[dict[str, Any]] | None = Non
     return all(_stored_digest(sweep_dir / name) == digest for name in (FRAMES_FILE, RUNS_FILE))
 
 
-def load_sweep(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+def load_sweep(
+    sweep_dir: Path, columns: list[str] | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``(frames, runs)`` of a sweep, re-merged from ``runs/`` first when the merged files
     are missing, unreadable or stale (a run was added, recomputed or removed since).
+    ``columns``: only these columns of the rows (those the sweep has; None: all).
 
     Raises :class:`StoreError` naming the file when an ok run's rows file is missing or
     corrupt (checked against its record's SHA-256 every time) or the sweep folder has no
@@ -259,9 +262,14 @@ def load_sweep(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
             path = rows_path(sweep_dir, record)
             if (problem := rows_problem(path, record.get("rows_sha256"), checks)) is not None:
                 raise StoreError(path, f"rows file {problem}")
-    if merge_is_current(sweep_dir, records):
-        try:
-            return pd.read_parquet(sweep_dir / FRAMES_FILE), pd.read_parquet(sweep_dir / RUNS_FILE)
-        except Exception:  # damaged between the check and the read: merge again
-            pass
-    return collect(sweep_dir)
+    if not merge_is_current(sweep_dir, records):
+        merge(sweep_dir)
+    frames_path = sweep_dir / FRAMES_FILE
+    if columns is not None:
+        present = set(pq.read_schema(frames_path).names)
+        columns = [c for c in columns if c in present]
+    try:
+        return pd.read_parquet(frames_path, columns=columns), pd.read_parquet(sweep_dir / RUNS_FILE)
+    except Exception:  # damaged between the check and the read: merge again
+        runs = merge(sweep_dir)
+        return pd.read_parquet(frames_path, columns=columns), runs
