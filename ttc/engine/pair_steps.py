@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from ttc.engine.cache import Lookup
@@ -31,6 +32,15 @@ from ttc.steps.keypoint_filter import filter_box_matches
 from ttc.steps.lidar import LeadAssociation, associate_lead
 from ttc.steps.lidar_ttc import lidar_ttc
 from ttc.steps.object_lidar import ObjectAssociation, associate_objects
+
+
+@dataclass(frozen=True)
+class FrameLidar:
+    """One frame's lidar association: the ego lane's (``lead``: its lead box and the lane
+    points' owners) and every box's own points (``objects``)."""
+
+    lead: LeadAssociation
+    objects: ObjectAssociation
 
 
 def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -60,13 +70,13 @@ class PairSteps:
         curr: int,
         per_frame: dict[str, dict[int, Lookup]],
         match: Lookup,
-        frame_objects: dict[int, ObjectAssociation] | None = None,
+        frame_lidar: dict[int, FrameLidar] | None = None,
     ) -> None:
-        """``frame_objects``: each frame's object association, shared by the pairs of a run
-        (a frame is the current one of a pair and the previous one of the next); None: this
+        """``frame_lidar``: each frame's lidar association, shared by the pairs of a run (a
+        frame is the current one of a pair and the previous one of the next); None: this
         pair's own."""
         self.frames, self.calib, self.dt, self.prev, self.curr = frames, calib, dt, prev, curr
-        self.frame_objects = {} if frame_objects is None else frame_objects
+        self.frame_lidar = {} if frame_lidar is None else frame_lidar
         self.per_frame, self.match = per_frame, match
         self.obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
         self.lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
@@ -77,8 +87,6 @@ class PairSteps:
         self.xy_curr = self.kp_curr[:, [X, Y]]
         self.memo: dict[str, dict] = {k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base")}
         self.assoc: tuple | None = None
-        self.object_assoc: dict[int, ObjectAssociation] | None = None
-        self.ms_objects = 0.0
 
     def rows(
         self, s: Settings, k: dict[str, str], member: int, detail: dict | None = None
@@ -90,8 +98,7 @@ class PairSteps:
             self.memo["sel"], k["selector"], lambda: pair_matches(self.match.arrays, s.selector)
         )
         box_matches, ms_fp1 = self._fp1(s, k, selected)
-        uv, owners, lead_box, ms_assoc = self._association(s)
-        objects = self._objects(s)
+        uv, owners, lead_box, objects, ms_assoc = self._association(s)
         box_pairs = list(
             zip(box_matches.prev_box.tolist(), box_matches.curr_box.tolist(), strict=True)
         )
@@ -120,45 +127,33 @@ class PairSteps:
                           lead_box=lead_box, objects=objects)  # fmt: skip
         return rows
 
-    def _association(self, s: Settings) -> tuple[dict, dict, int, float]:
-        """(lane points' pixels, their owner box, lead box, ms) per frame, once per pair (its
-        inputs are upstream of every member). The lead is the current box holding most lane
-        lidar points."""
+    def _association(self, s: Settings) -> tuple[dict, dict, int, dict, float]:
+        """(lane points' pixels, their owner box, lead box, every box's own lidar points
+        (:func:`associate_objects`), ms) per frame of the pair. Each frame is associated once
+        per run (:attr:`frame_lidar`: a frame is the current one of a pair and the previous
+        one of the next; its inputs are upstream of every member); ms counts the frames this
+        pair associated. The lead is the current box holding most lane lidar points."""
         if self.assoc is None:
             lane, obj, velo_to_image = self.lane, self.obj, self.calib.velo_to_image
+            store = self.frame_lidar
 
-            def associate() -> dict[int, LeadAssociation]:
-                return {
-                    i: associate_lead(
-                        lane[i]["points"], velo_to_image, obj[i]["roi"], s.lidar_shrink
-                    )
-                    for i in (self.prev, self.curr)
-                }
-
-            found, ms = _timed(associate)
-            uv = {i: a.uv for i, a in found.items()}
-            owners = {i: a.owner for i, a in found.items()}
-            self.assoc = (uv, owners, found[self.curr].lead, ms)
-        return self.assoc
-
-    def _objects(self, s: Settings) -> dict[int, ObjectAssociation]:
-        """Every box's own lidar points per frame (:func:`associate_objects`), once per frame
-        of the run (:attr:`frame_objects`); the time is added to the lane association's (the
-        pair's ``ms_lidar``)."""
-        if self.object_assoc is None:
-            lane, obj, velo_to_image = self.lane, self.obj, self.calib.velo_to_image
-            store = self.frame_objects
-
-            def associate() -> dict[int, ObjectAssociation]:
+            def associate() -> dict[int, FrameLidar]:
                 for i in (self.prev, self.curr):
                     if i not in store:
-                        store[i] = associate_objects(lane[i]["object_points"], velo_to_image,
-                                                     obj[i]["roi"], s.lidar_shrink,
-                                                     s.object_lidar)  # fmt: skip
+                        roi = obj[i]["roi"]
+                        store[i] = FrameLidar(
+                            associate_lead(lane[i]["points"], velo_to_image, roi, s.lidar_shrink),
+                            associate_objects(lane[i]["object_points"], velo_to_image, roi,
+                                              s.lidar_shrink, s.object_lidar),
+                        )  # fmt: skip
                 return {i: store[i] for i in (self.prev, self.curr)}
 
-            self.object_assoc, self.ms_objects = _timed(associate)
-        return self.object_assoc
+            found, ms = _timed(associate)
+            uv = {i: a.lead.uv for i, a in found.items()}
+            owners = {i: a.lead.owner for i, a in found.items()}
+            objects = {i: a.objects for i, a in found.items()}
+            self.assoc = (uv, owners, found[self.curr].lead.lead, objects, ms)
+        return self.assoc
 
     def _fp1(self, s: Settings, k: dict[str, str], selected: Any) -> tuple[Any, float]:
         prev, curr, obj = self.prev, self.curr, self.obj
@@ -187,7 +182,7 @@ class PairSteps:
             }
             ms = {
                 "objects": pf["objects"][curr].ms,
-                "lidar": pf["lidar"][curr].ms + ms_assoc + self.ms_objects,
+                "lidar": pf["lidar"][curr].ms + ms_assoc,
                 "keypoints": pf["keypoints"][curr].ms,
                 "descriptors": pf["descriptors"][curr].ms,
                 "matching": self.match.ms + ms_select,

@@ -241,7 +241,7 @@ def _group_rows(
     out: dict[int, list[dict]] = {m: [] for m in members}
     keys = {m: member_keys(settings[m]) for m in members}
     first = settings[members[0]]
-    frame_objects: dict = {}  # each frame's object association, shared by its two pairs
+    frame_lidar: dict = {}  # each frame's lidar association, shared by its two pairs
     try:
         for pairs, per_frame, matches, broken in stream(first, frames, cache, indices):
             for prev, curr in pairs:
@@ -251,10 +251,10 @@ def _group_rows(
                     for m in members:
                         out[m].append({**error_row(prev, curr, dt, error), MEMBER: m})
                     continue
-                for done in [i for i in frame_objects if i != prev]:
-                    del frame_objects[done]
+                for done in [i for i in frame_lidar if i != prev]:
+                    del frame_lidar[done]
                 shared = PairSteps(frames, calib, dt, prev, curr, per_frame,
-                                   matches[(prev, curr)], frame_objects)  # fmt: skip
+                                   matches[(prev, curr)], frame_lidar)  # fmt: skip
                 for m in members:
                     if m in failed:
                         continue
