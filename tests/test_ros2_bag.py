@@ -99,7 +99,11 @@ def test_the_bag_gives_the_kitti_loader_s_results_on_drive_0009(bag, tmp_path) -
     TTCs within 2 % of dataset=kitti_raw_0009 for the same setting; frame 0's points within
     1 px of the KITTI loader's projection."""
     cache = StageCache(tmp_path / "cache")
-    kitti, ros = composed(["dataset=kitti_raw_0009"]), bag_config(bag)
+    kitti = composed(["dataset=kitti_raw_0009"])  # and its camera pair distance:
+    pair_distance = [
+        f"camera_ttc.{k}={kitti.camera_ttc[k]}" for k in ("min_dist", "min_box_fraction")
+    ]
+    ros = bag_config(bag, *pair_distance)
     assert config_problems(ros) == []
     settings = settings_from_config(kitti)
     assert settings == settings_from_config(ros)
