@@ -4,6 +4,7 @@ overwrite our OpenCV), once per session, then variants of it written with the mc
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 from pathlib import Path
@@ -30,7 +31,8 @@ from ttc.io.frames import frame_files, read_lidar_scan
 from ttc.io.ros2_bag import BagSource
 
 pytest.importorskip("kitti2mcap", reason="installed by .ci/run (--no-deps)")
-from mcap.reader import make_reader  # noqa: E402
+from mcap.exceptions import EndOfFile  # noqa: E402
+from mcap.reader import NonSeekingReader, make_reader  # noqa: E402
 from mcap_ros2.decoder import DecoderFactory  # noqa: E402
 from mcap_ros2.writer import Writer  # noqa: E402
 
@@ -216,11 +218,63 @@ def test_a_camera_message_without_a_scan_is_a_frame_error_of_its_pairs(bag, tmp_
 
 
 @pytest.mark.slow
+def test_a_bag_cut_short_is_read_up_to_its_last_whole_message(bag, tmp_path) -> None:
+    """Cut in the middle of the chunk holding scan 3, as a recorder killed mid-write leaves
+    it (no summary, no index): camera messages 0-3 are whole, so frames 0-3 are the
+    recording; frame 3 lost its scan: pair (2, 3) is a frame_error, pairs (0, 1) and (1, 2)
+    are the whole bag's; a frame past the cut is not in the range (dataset.last=4 refused)."""
+    with bag.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    lidar = {c.id for c in summary.channels.values() if c.topic == LIDAR}
+    chunk = [c for c in summary.chunk_indexes if lidar & c.message_index_offsets.keys()][3]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(bag.read_bytes()[: chunk.chunk_start_offset + chunk.chunk_length // 2])
+    whole = []  # what the mcap library's streaming reader reads before the cut
+    with cut.open("rb") as f, contextlib.suppress(EndOfFile):
+        for _, channel, _ in NonSeekingReader(f).iter_messages(log_time_order=False):
+            whole.append(channel.topic)
+    assert whole.count(IMAGE) == 4 and whole.count(LIDAR) == 3
+
+    cfg = bag_config(cut, "dataset.last=null")
+    with pytest.warns(RuntimeWarning) as caught:
+        assert config_problems(cfg) == []
+    assert [str(w.message).count(str(cut)) for w in caught] == [1]
+    assert f"read its {len(whole)} whole messages" in str(caught[0].message)
+    frames = frame_range_from_config(cfg)
+    assert frames.indices == [0, 1, 2, 3]
+    rows = run_setting(settings_from_config(cfg), frames, StageCache(None))
+    errors = rows[rows["lidar_reason"] == "frame_error"]
+    assert (
+        set(errors["frame"]) == {3}
+        and (rows[rows["frame"] == 3]["lidar_reason"] == "frame_error").all()
+    )
+    assert errors["error"].str.contains(f"no {LIDAR} scan").all()
+    full = bag_config(bag, "dataset.last=2")
+    expected = run_setting(
+        settings_from_config(full), frame_range_from_config(full), StageCache(None)
+    )
+    kept = [
+        "prev_frame",
+        "frame",
+        "prev_box",
+        "curr_box",
+        "object_distance_m",
+        "ttc_lidar",
+        "ttc_camera",
+    ]
+    pd.testing.assert_frame_equal(
+        rows[rows["frame"] < 3][kept].reset_index(drop=True), expected[kept].reset_index(drop=True)
+    )
+    problems = config_problems(bag_config(cut, "dataset.last=4"))
+    assert len(problems) == 1 and "past the recording's last frame" in problems[0]
+
+
+@pytest.mark.slow
 def test_bad_bags_are_refused_with_one_message_naming_the_file_or_topic(bag, tmp_path) -> None:
-    half = tmp_path / "half.mcap"
-    half.write_bytes(bag.read_bytes()[: bag.stat().st_size // 2])
-    problems = config_problems(bag_config(half))
-    assert len(problems) == 1 and str(half) in problems[0] and "mcap recover" in problems[0]
+    stub = tmp_path / "stub.mcap"  # cut inside the first chunk: not one whole message
+    stub.write_bytes(bag.read_bytes()[:500_000])
+    problems = config_problems(bag_config(stub))
+    assert len(problems) == 1 and str(stub) in problems[0] and "no whole message" in problems[0]
 
     def no_xyz(topic, name, msg):
         if topic == LIDAR:
