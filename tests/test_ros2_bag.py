@@ -218,6 +218,45 @@ def test_a_camera_message_without_a_scan_is_a_frame_error_of_its_pairs(bag, tmp_
 
 
 @pytest.mark.slow
+def test_a_lidar_frame_published_on_tf_gives_the_static_bag_s_results(bag, tmp_path) -> None:
+    """base_link -> velodyne moved from /tf_static to /tf, published with each ego pose at
+    its stamp (as a lidar on a moving mount is): the lidar -> camera chain now goes through
+    /tf; calibration, ego speed and every row of frames 0-2 are the static bag's."""
+    moved = {}
+
+    def to_tf(topic, name, msg):
+        if topic == "/tf_static":
+            moved["velodyne"] = next(t for t in msg.transforms if t.child_frame_id == "velodyne")
+            msg.transforms = [t for t in msg.transforms if t.child_frame_id != "velodyne"]
+        elif topic == "/tf":
+            lidar = moved["velodyne"]
+            stamp = msg.transforms[0].header.stamp
+            header = {"stamp": stamp, "frame_id": lidar.header.frame_id}
+            msg.transforms.append(
+                {"header": header, "child_frame_id": "velodyne", "transform": lidar.transform}
+            )
+        return name, msg
+
+    on_tf = rewrite(bag, tmp_path / "on_tf.mcap", to_tf)
+    with on_tf.open("rb") as f:
+        static = [d for *_, d in make_reader(f, decoder_factories=[DecoderFactory()])
+                  .iter_decoded_messages(topics=["/tf_static"])]  # fmt: skip
+    assert [t.child_frame_id for t in static[0].transforms] == ["camera_color_left"]
+    a, b = (load_calibration(BagSource(p, camera_frame="rectified")) for p in (bag, on_tf))
+    assert np.array_equal(a.velo_to_image, b.velo_to_image)
+    rows = []
+    for path in (bag, on_tf):
+        cfg = bag_config(path, "dataset.last=2")
+        assert config_problems(cfg) == []
+        rows.append(
+            run_setting(settings_from_config(cfg), frame_range_from_config(cfg), StageCache(None))
+        )
+    kept = [c for c in rows[0].columns if not c.startswith(("ms_", "cached_"))]
+    assert len(rows[0]) > 4 and rows[0]["ego_speed_mps"].between(1.0, 30.0).all()
+    pd.testing.assert_frame_equal(rows[0][kept], rows[1][kept])
+
+
+@pytest.mark.slow
 def test_a_bag_cut_short_is_read_up_to_its_last_whole_message(bag, tmp_path) -> None:
     """Cut in the middle of the chunk holding scan 3, as a recorder killed mid-write leaves
     it (no summary, no index): camera messages 0-3 are whole, so frames 0-3 are the

@@ -34,6 +34,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from ttc.io.frame_errors import FrameDataError
 from ttc.io.mcap_recovery import IndexedReader, recover_summary
+from ttc.io.ros2_msgs import stamp_ns
 
 METADATA = "metadata.yaml"
 #: What a damaged file raises inside the mcap library besides its own errors.
@@ -302,8 +303,7 @@ def header_stamp_ns(index: BagIndex, topic: str, position: int) -> int:
     """The header stamp (ns) of a message with a ``std_msgs/Header`` (kept once read)."""
     key = (topic, position)
     if key not in index.stamps:
-        stamp = read_message(index, topic, position).header.stamp
-        index.stamps[key] = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        index.stamps[key] = stamp_ns(read_message(index, topic, position).header)
     return index.stamps[key]
 
 
