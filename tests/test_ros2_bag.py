@@ -5,23 +5,23 @@ overwrite our OpenCV), once per session, then variants of it written with the mc
 from __future__ import annotations
 
 import contextlib
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import compose, initialize_config_dir
+from mcap.exceptions import EndOfFile
+from mcap.reader import NonSeekingReader, make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from experiments.config import (
     config_problems,
     frame_range_from_config,
-    register_configs,
     settings_from_config,
 )
-from tests.conftest import PROJECT_ROOT, data_root
+from tests.conftest import data_root
+from tests.ros2_bags import DRIVE, IMAGE, LIDAR, bag_config, composed, make_bag, rewrite
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
 from ttc.engine.stages import FrameStages
@@ -31,68 +31,12 @@ from ttc.io.frames import frame_files, read_lidar_scan
 from ttc.io.ros2_bag import BagSource
 
 pytest.importorskip("kitti2mcap", reason="installed by .ci/run (--no-deps)")
-from mcap.exceptions import EndOfFile  # noqa: E402
-from mcap.reader import NonSeekingReader, make_reader  # noqa: E402
-from mcap_ros2.decoder import DecoderFactory  # noqa: E402
-from mcap_ros2.writer import Writer  # noqa: E402
-
-RAW = Path("kitti_raw") / "2011_09_26"
-DRIVE = RAW / "2011_09_26_drive_0009_sync"
-IMAGE = "/kitti/camera_color_left/image_raw"
-LIDAR = "/kitti/velodyne_points"
-COMPRESSED = """std_msgs/Header header
-string format
-uint8[] data
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
 
 
 @pytest.fixture(scope="session")
 def bag(tmp_path_factory) -> Path:
     """Drive 0009 frames 0-15 as kitti2mcap writes it (≈ 35 MB, ≈ 2 s)."""
-    out = tmp_path_factory.mktemp("bag") / "0009.mcap"
-    cmd = [sys.executable, "-m", "kitti2mcap", "--date", "2011_09_26", "--drive", "0009",
-           "--kitti-dir", str(data_root() / "kitti_raw"), "--output", str(out), "--frames", "16"]  # fmt: skip
-    subprocess.run(cmd, check=True, capture_output=True)
-    return out
-
-
-def rewrite(src: Path, dst: Path, change) -> Path:
-    """``src`` written again message by message; ``change(topic, schema name, message)``
-    returns ``(schema name, message)``, or None to drop it (schema ``CompressedImage``: ours)."""
-    with src.open("rb") as f, dst.open("wb") as g:
-        writer, schemas = Writer(g), {}
-        for schema, channel, message, decoded in make_reader(
-            f, decoder_factories=[DecoderFactory()]
-        ).iter_decoded_messages():
-            out = change(channel.topic, schema.name, decoded)
-            if out is None:
-                continue
-            name, msg = out
-            if name not in schemas:
-                text = COMPRESSED if name.endswith("CompressedImage") else schema.data.decode()
-                schemas[name] = writer.register_msgdef(name, text)
-            writer.write_message(channel.topic, schemas[name], msg, message.log_time,
-                                 message.publish_time)  # fmt: skip
-        writer.finish()
-    return dst
-
-
-def composed(overrides: list[str]):
-    register_configs()
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=overrides)
-
-
-def bag_config(path: Path, *extra: str):
-    return composed(["dataset=kitti2mcap", f"dataset.path={path}", *extra])
+    return make_bag(tmp_path_factory.mktemp("bag") / "0009.mcap")
 
 
 @pytest.mark.slow
