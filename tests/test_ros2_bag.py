@@ -26,9 +26,10 @@ from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
 from ttc.engine.stages import FrameStages
 from ttc.io.calibration import load_calibration
+from ttc.io.ego_motion import pair_ego_speeds
 from ttc.io.frame_errors import FrameDataError
-from ttc.io.frames import frame_files, read_lidar_scan
-from ttc.io.ros2_bag import BagSource
+from ttc.io.frames import frame_clock_ns, frame_files, read_lidar_scan
+from ttc.io.ros2_bag import BagSource, bag_index
 
 pytest.importorskip("kitti2mcap", reason="installed by .ci/run (--no-deps)")
 
@@ -198,6 +199,31 @@ def test_a_lidar_frame_published_on_tf_gives_the_static_bag_s_results(bag, tmp_p
     kept = [c for c in rows[0].columns if not c.startswith(("ms_", "cached_"))]
     assert len(rows[0]) > 4 and rows[0]["ego_speed_mps"].between(1.0, 30.0).all()
     pd.testing.assert_frame_equal(rows[0][kept], rows[1][kept])
+
+
+def test_ego_speed_from_an_odometry_topic_is_the_tf_pose_s(bag, tmp_path) -> None:
+    """The ego pose as nav_msgs/msg/Odometry on /odom instead of /tf (each map -> base_link
+    transform as a pose, same stamp): every pair's ego_speed_mps of frames 0-15 is the /tf
+    bag's within 2 %, and the oxts speed of the KITTI folder within 2 %."""
+
+    def to_odometry(topic, name, msg):
+        if topic != "/tf":
+            return name, msg
+        (t,) = msg.transforms
+        v, q = t.transform.translation, t.transform.rotation
+        pose = {"position": {"x": v.x, "y": v.y, "z": v.z}, "orientation": q}
+        odom = {"header": t.header, "child_frame_id": t.child_frame_id, "pose": {"pose": pose}}
+        return [("/odom", "nav_msgs/msg/Odometry", odom)]
+
+    odometry = rewrite(bag, tmp_path / "odom.mcap", to_odometry)
+    index = bag_index(odometry)
+    assert "/tf" not in index.topics and index.of_type("nav_msgs/msg/Odometry") == ["/odom"]
+    pairs = pd.DataFrame({"prev_frame": range(15), "frame": range(1, 16)})
+    speeds = [pair_ego_speeds(BagSource(p), None, pairs) for p in (bag, odometry)]
+    folder = data_root() / DRIVE
+    oxts = pair_ego_speeds(folder, frame_clock_ns(folder), pairs)
+    assert np.isfinite(speeds[1]).all() and (speeds[1] > 1.0).all()
+    assert np.allclose(speeds[1], speeds[0], rtol=0.02) and np.allclose(speeds[1], oxts, rtol=0.02)
 
 
 @pytest.mark.slow
