@@ -6,11 +6,13 @@ imports (the end-of-sweep summary, the references, MLflow and the report use it)
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pandas as pd
 
 from experiments.config import setting_hash
-from experiments.data.datasets import recording_id
+from experiments.data.datasets import bag_source, recording_id
+from ttc.io.ros2_bag import BagSource
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
 
@@ -19,6 +21,15 @@ def recording_of(runs: pd.DataFrame) -> pd.Series:
     run id."""
     sequences = [json.loads(c)["dataset"]["sequence"] for c in runs["config"]]
     return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
+
+
+def recording_source_of(runs: pd.DataFrame, run_id: str, root: Path) -> Path | BagSource:
+    """What run ``run_id`` of ``runs`` read: ``dataset.sequence`` under the data ``root``, or
+    for a ``ros2_bag`` run the bag with the run's own topics, scan tolerance and camera frame
+    (its stored ``config``; :func:`experiments.data.datasets.bag_source`)."""
+    dataset = json.loads(runs.loc[runs["run_id"] == run_id, "config"].iloc[0])["dataset"]
+    recording = Path(root) / dataset["sequence"]
+    return bag_source(dataset, recording) or recording
 
 
 def run_ids_by_recording(runs: pd.DataFrame) -> dict[str, list[str]]:

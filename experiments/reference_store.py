@@ -13,7 +13,7 @@ import pandas as pd
 
 from experiments.data.datasets import recording_id
 from experiments.paths import default_cache_dir, default_data_root
-from experiments.recordings import recording_of, run_ids_by_recording
+from experiments.recordings import recording_of, recording_source_of, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache, Task, cache_key
 from ttc.engine.stages import FrameStages
@@ -32,6 +32,7 @@ from ttc.io.frames import (
     read_lidar_scan,
     recording_frames,
 )
+from ttc.io.ros2_bag import BagSource
 from ttc.settings import FrameRange, Settings
 from ttc.steps.lidar import associate_lead
 from ttc.steps.object_lidar import associate_objects
@@ -51,7 +52,7 @@ def sequence_of(runs: pd.DataFrame) -> str:
     return sequences[0]
 
 
-def _reference_key(sequence_dir: Path, last: int, times: np.ndarray | None) -> str:
+def _reference_key(sequence_dir: Path | BagSource, last: int, times: np.ndarray | None) -> str:
     scans = [file_identity(frame_files(sequence_dir, i).scan) for i in range(last + 1)]
     code = "".join(inspect.getsource(m) for m in (lead_distance, lead_status, reference_module))
     source = hashlib.sha256(code.encode()).hexdigest()
@@ -59,13 +60,13 @@ def _reference_key(sequence_dir: Path, last: int, times: np.ndarray | None) -> s
     return cache_key("reference", REFERENCE_CACHE_VERSION, source, scans, clock)
 
 
-def recording_scans(sequence_dir: Path, last: int) -> Iterator[tuple[int, np.ndarray]]:
+def recording_scans(sequence_dir: Path | BagSource, last: int) -> Iterator[tuple[int, np.ndarray]]:
     """``(frame, points)`` of frames 0..``last`` of a recording, one scan read at a time."""
     for index in range(last + 1):
         yield index, read_lidar_scan(frame_files(sequence_dir, index).scan).points
 
 
-def reference_task(sequence_dir: Path) -> Task:
+def reference_task(sequence_dir: Path | BagSource) -> Task:
     """The stage-cache task of the reference TTC over every frame of the recording
     (:func:`reference_for_sequence`), at the recording's real frame times when it ships a
     ``timestamps.txt`` (:func:`ttc.io.frames.read_frame_times`); key: the scans' identities, the
@@ -75,6 +76,7 @@ def reference_task(sequence_dir: Path) -> Task:
     if last < 1:
         raise FileNotFoundError(f"fewer than two frames under {Path(sequence_dir)}")
     times = read_frame_times(sequence_dir)
+    times = None if times is None else np.asarray(times, dtype=float)  # a bag's: read here
 
     def compute() -> dict[str, np.ndarray]:
         ref = reference_module.reference_for_sequence(
@@ -89,10 +91,10 @@ def reference_task(sequence_dir: Path) -> Task:
             for c in ref.columns
         }
 
-    return Task("reference", _reference_key(Path(sequence_dir), last, times), compute)
+    return Task("reference", _reference_key(sequence_dir, last, times), compute)
 
 
-def sequence_reference(sequence_dir: Path, cache: StageCache) -> pd.DataFrame:
+def sequence_reference(sequence_dir: Path | BagSource, cache: StageCache) -> pd.DataFrame:
     """Reference TTC over every frame of the recording (:func:`reference_task`), from the
     stage cache when it holds it."""
     return pd.DataFrame(cache.get(reference_task(sequence_dir)).arrays)
@@ -116,7 +118,7 @@ def recording_references(
             out[sequence] = ev.truth_reference(mine)
             continue
         cache = cache if cache is not None else StageCache(default_cache_dir())
-        out[sequence] = sequence_reference(root / sequence, cache)
+        out[sequence] = sequence_reference(recording_source_of(runs, ids[0], root), cache)
     return out
 
 
@@ -126,7 +128,7 @@ MARGIN_FRAMES = reference_module.WINDOW // 2
 
 
 def recording_boxes(
-    sequence_dir: Path,
+    sequence_dir: Path | BagSource,
     settings: Settings,
     cache: StageCache,
     projection: str = "P_rect_02",
@@ -142,7 +144,7 @@ def recording_boxes(
     frames = recording_frames(sequence_dir)
     if span is not None:
         frames = [f for f in frames if span[0] <= f <= span[1]]
-    rng = FrameRange(Path(sequence_dir), first=frames[0], last=frames[-1], projection=projection)
+    rng = FrameRange(sequence_dir, first=frames[0], last=frames[-1], projection=projection)
     stages = FrameStages(settings, rng, cache)
     calib = load_calibration(sequence_dir, rng.projection)
     names = coco_names(settings.objects)
@@ -167,6 +169,7 @@ def recording_boxes(
     times = read_frame_times(sequence_dir)
     if times is None:
         times = np.arange(frames[-1] + 1) * frame_interval()
+    times = np.asarray(times, dtype=float)
     width = read_image(frame_files(sequence_dir, frames[0]).image).shape[1]
     return pd.concat(parts, ignore_index=True), times, int(width)
 
@@ -198,9 +201,8 @@ def object_references(
             int(mine["prev_frame"].min()) - MARGIN_FRAMES,
             int(mine["frame"].max()) + MARGIN_FRAMES,
         )
-        boxes, times, width = recording_boxes(
-            root / sequence, settings, cache, rng.projection, span
-        )
+        source = recording_source_of(runs, ids[0], root)  # a bag: the run's topics
+        boxes, times, width = recording_boxes(source, settings, cache, rng.projection, span)
         ego = None
         if EGO_SPEED in mine and mine[EGO_SPEED].notna().any():
             per_frame = mine.groupby("frame")[EGO_SPEED].median()

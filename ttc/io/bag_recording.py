@@ -43,6 +43,10 @@ from ttc.io.ros2_bag import (
 
 CAMERA_FRAMES = ("optical", "rectified")
 TF_STATIC, TF = "/tf_static", "/tf"
+#: Seconds around a camera stamp searched for the ``/tf`` transforms nearest to it.
+TF_WINDOW_S = 1.0
+#: REP 105's world frames: the ego pose is the transform of the frame right under one.
+WORLD_FRAMES = ("map", "odom", "earth", "world")
 #: Seconds a frame may lie outside the ego poses' span and still take the nearest segment's.
 EDGE_TOLERANCE_S = 0.05
 
@@ -211,23 +215,31 @@ def calibration(source: BagSource) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
         raise FrameDataError(source.path, f"{info_topic}: {exc}") from None
     camera = str(info.header.frame_id) or str(read_message(index, image, 0).header.frame_id)
     cloud = str(read_message(index, lidar, 0).header.frame_id)
-    t = lidar_to_camera(index, cloud, camera, int(index.topic(image).log_ns[0]))
+    t = lidar_to_camera(index, cloud, camera, header_stamp_ns(index, image, 0))
     if source.camera_frame == "rectified":
         p, r = np.hstack([p[:, :3], np.zeros((3, 1))]), np.eye(3)
     return p, r, t, msgs.image_size(info)
 
 
+def moving_edges(index: BagIndex, at_ns: int) -> dict[str, tuple[str, np.ndarray]]:
+    """The ``/tf`` tree at ``at_ns`` (ns): each child frame's transform whose header stamp is
+    nearest, among those logged within :data:`TF_WINDOW_S` of it; empty without ``/tf``."""
+    if TF not in index.topics:
+        return {}
+    window = int(TF_WINDOW_S * 1e9)
+    moving = read_range(index, TF, at_ns - window, at_ns + window)
+    return msgs.tf_edges([m for _, m in moving], at_ns)
+
+
 def lidar_to_camera(index: BagIndex, cloud: str, camera: str, at_ns: int) -> np.ndarray:
-    """4 × 4 lidar → camera from ``/tf_static`` (and ``/tf`` near ``at_ns`` for a frame that
-    moves); a FrameDataError naming what is missing and the topics the bag holds."""
+    """4 × 4 lidar → camera at ``at_ns`` (the first camera stamp) from ``/tf_static``, and
+    ``/tf`` (:func:`moving_edges`) where the chain goes through a frame published there; a
+    FrameDataError naming what is missing and the topics the bag holds."""
     static = read_all(index, TF_STATIC) if TF_STATIC in index.topics else []
     edges = msgs.tf_edges(static)
     found = msgs.frame_transform(cloud, camera, edges)
-    if found is None and TF in index.topics:
-        moving = read_range(index, TF, at_ns - 1_000_000_000, at_ns + 1_000_000_000)
-        found = msgs.frame_transform(
-            cloud, camera, {**msgs.tf_edges([m for _, m in moving]), **edges}
-        )
+    if found is None:
+        found = msgs.frame_transform(cloud, camera, {**moving_edges(index, at_ns), **edges})
     if found is None:
         where = TF_STATIC if TF_STATIC in index.topics else f"{TF_STATIC} (the bag has none)"
         raise FrameDataError(
@@ -262,14 +274,31 @@ def bag_problems(source: BagSource) -> list[str]:
     return []
 
 
+def ego_frame(lidar: str, static: dict, moving: dict) -> str:
+    """The frame whose pose is the ego pose: walking up from the ``lidar`` frame through the
+    ``static`` and ``moving`` edges (:func:`ttc.io.ros2_msgs.tf_edges`), the first whose
+    parent is one of :data:`WORLD_FRAMES`; without one, the root of the lidar's static tree."""
+    frame = lidar
+    for _ in range(len(static) + len(moving)):  # a cycle ends the walk
+        if frame not in static and frame not in moving:
+            break
+        parent = (static.get(frame) or moving[frame])[0]
+        if parent in WORLD_FRAMES:
+            return frame
+        frame = parent
+    frame = lidar
+    for _ in range(len(static)):
+        frame = static.get(frame, (frame,))[0]
+    return frame
+
+
 def _ego_track(source: BagSource, start_ns: int, end_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps ns (S,), positions (S, 3) m) of the ego pose: ``/tf`` transforms whose child is
-    the root of the lidar's static tree, else a single Odometry topic's poses."""
+    """(stamps ns (S,), positions (S, 3) m) of the ego pose: the ``/tf`` transforms of
+    :func:`ego_frame`, else a single Odometry topic's poses."""
     index, _, _, lidar = topics(source)
     static = msgs.tf_edges(read_all(index, TF_STATIC)) if TF_STATIC in index.topics else {}
-    frame = str(read_message(index, lidar, 0).header.frame_id).lstrip("/")
-    while frame in static:
-        frame = static[frame][0]
+    cloud = str(read_message(index, lidar, 0).header.frame_id).lstrip("/")
+    frame = ego_frame(cloud, static, moving_edges(index, start_ns))
     margin = 1_000_000_000
     samples = []
     if TF in index.topics:
@@ -277,13 +306,12 @@ def _ego_track(source: BagSource, start_ns: int, end_ns: int) -> tuple[np.ndarra
             for t in m.transforms:
                 if str(t.child_frame_id).lstrip("/") == frame:
                     v = t.transform.translation
-                    stamp = int(t.header.stamp.sec) * 1_000_000_000 + int(t.header.stamp.nanosec)
-                    samples.append((stamp, (v.x, v.y, v.z)))
+                    samples.append((msgs.stamp_ns(t.header), (v.x, v.y, v.z)))
     odometry = index.of_type(msgs.ODOMETRY_TYPE)
     if not samples and len(odometry) == 1:
         for _, m in read_range(index, odometry[0], start_ns - margin, end_ns + margin):
-            p, st = m.pose.pose.position, m.header.stamp
-            samples.append((int(st.sec) * 1_000_000_000 + int(st.nanosec), (p.x, p.y, p.z)))
+            p = m.pose.pose.position
+            samples.append((msgs.stamp_ns(m.header), (p.x, p.y, p.z)))
     samples.sort(key=lambda s: s[0])
     return np.asarray([s[0] for s in samples], np.int64), np.asarray([s[1] for s in samples], float)
 

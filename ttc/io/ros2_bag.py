@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,9 +29,12 @@ from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.records import MessageIndex
 from mcap.stream_reader import ReadDataStream
+from mcap.summary import Summary
 from mcap_ros2.decoder import DecoderFactory
 
 from ttc.io.frame_errors import FrameDataError
+from ttc.io.mcap_recovery import IndexedReader, recover_summary
+from ttc.io.ros2_msgs import stamp_ns
 
 METADATA = "metadata.yaml"
 #: What a damaged file raises inside the mcap library besides its own errors.
@@ -128,14 +132,20 @@ class BagIndex:
     decoders: dict[tuple[int, int], Any] = field(default_factory=dict)
     stamps: dict[tuple[str, int], int] = field(default_factory=dict)
     readers: dict[tuple[int, int], SeekingReader] = field(default_factory=dict)
+    #: The rebuilt summaries of files cut short (:mod:`ttc.io.mcap_recovery`), by file number.
+    recovered: dict[int, Summary] = field(default_factory=dict)
 
     def reader(self, file_no: int) -> SeekingReader:
         """An open reader of file ``file_no`` whose summary is read once (one per process:
         a forked worker opens its own, so no two processes share a file position)."""
         key = (os.getpid(), file_no)
         if key not in self.readers:
-            stream = self.files[file_no].open("rb")
-            self.readers[key] = SeekingReader(stream, decoder_factories=[DecoderFactory()])
+            stream, factories = self.files[file_no].open("rb"), [DecoderFactory()]
+            if file_no in self.recovered:
+                reader = IndexedReader(stream, self.recovered[file_no], decoder_factories=factories)
+            else:
+                reader = SeekingReader(stream, decoder_factories=factories)
+            self.readers[key] = reader
         return self.readers[key]
 
     def topic(self, name: str) -> TopicIndex:
@@ -165,26 +175,43 @@ def _message_times(stream, chunk_indexes, channel_ids: set[int]) -> dict[int, li
     return out
 
 
-def _file_topics(path: Path, file_no: int) -> dict[str, tuple[str, list[int]]]:
-    """{topic: (type, log times)} of one ``.mcap`` file, from its summary and indexes."""
+def _summary_and_times(path: Path) -> tuple[Summary, dict[int, list[int]], Summary | None]:
+    """(summary, {channel id: log times ns}, the summary when it was rebuilt from a file cut
+    short, else None) of one ``.mcap`` file."""
+    with path.open("rb") as stream:
+        reader = SeekingReader(stream)  # checks the magic: not an MCAP file at all is refused
+        try:
+            summary = reader.get_summary()
+        except _READ_ERRORS:  # no footer: cut short
+            summary = None
+        if summary is None or not summary.chunk_indexes:
+            recovered = recover_summary(stream)
+            if not recovered.messages:
+                raise McapError(f"no whole message in its {recovered.end} readable bytes")
+            return recovered.summary, recovered.times, recovered.summary
+        if all(c.message_index_offsets for c in summary.chunk_indexes):
+            return (
+                summary,
+                _message_times(stream, summary.chunk_indexes, set(summary.channels)),
+                None,
+            )
+        stream.seek(0)  # no message indexes: read the chunks once for the log times
+        times: dict[int, list[int]] = {c: [] for c in summary.channels}
+        for _, channel, message in SeekingReader(stream).iter_messages():
+            times[channel.id].append(message.log_time)
+        return summary, times, None
+
+
+def _file_topics(path: Path) -> tuple[dict[str, tuple[str, list[int]]], Summary | None]:
+    """({topic: (type, log times)}, the rebuilt summary of a file cut short or None) of one
+    ``.mcap`` file, from its summary and indexes."""
     try:
-        with path.open("rb") as stream:
-            summary = SeekingReader(stream).get_summary()
-            if summary is None or not summary.chunk_indexes:
-                raise McapError("no summary section")
-            ids = set(summary.channels)
-            if all(c.message_index_offsets for c in summary.chunk_indexes):
-                times = _message_times(stream, summary.chunk_indexes, ids)
-            else:  # no message indexes: read the chunks once for the log times
-                stream.seek(0)
-                times = {c: [] for c in ids}
-                for _, channel, message in SeekingReader(stream).iter_messages():
-                    times[channel.id].append(message.log_time)
+        summary, times, recovered = _summary_and_times(path)
     except _READ_ERRORS as exc:
         raise FrameDataError(
             path,
-            f"not a readable, complete MCAP file ({type(exc).__name__}: {exc}); a recorder "
-            "stopped mid-write leaves no index: 'mcap recover' rebuilds one",
+            f"not a readable MCAP file ({type(exc).__name__}: {exc}); 'mcap recover' "
+            "(the mcap CLI) rebuilds what a damaged file still holds",
         ) from None
     out: dict[str, tuple[str, list[int]]] = {}
     for cid, channel in summary.channels.items():
@@ -192,7 +219,7 @@ def _file_topics(path: Path, file_no: int) -> dict[str, tuple[str, list[int]]]:
         kind = schema.name if schema is not None else ""
         prev = out.get(channel.topic, (kind, []))[1]
         out[channel.topic] = (kind, prev + times[cid])
-    return out
+    return out, recovered
 
 
 _INDEXES: dict[tuple, BagIndex] = {}
@@ -217,18 +244,33 @@ def bag_index(path: Path | BagSource) -> BagIndex:
     if ident not in _INDEXES:
         files = bag_files(path)
         merged: dict[str, tuple[str, list[int], list[int]]] = {}
+        recovered: dict[int, Summary] = {}
         for no, f in enumerate(files):
-            for topic, (kind, times) in _file_topics(f, no).items():
+            file_topics, rebuilt = _file_topics(f)
+            for topic, (kind, times) in file_topics.items():
                 entry = merged.setdefault(topic, (kind, [], []))
                 entry[1].extend(times)
                 entry[2].extend([no] * len(times))
+            if rebuilt is not None:
+                recovered[no] = rebuilt
+                _warn_cut_short(f, sum(len(t) for _, t in file_topics.values()))
         topics = {}
         for topic, (kind, times, nos) in sorted(merged.items()):
             order = np.argsort(np.asarray(times, dtype=np.int64), kind="stable")
             log = np.asarray(times, dtype=np.int64)[order]
             topics[topic] = TopicIndex(topic, kind, log, np.asarray(nos, dtype=np.int64)[order])
-        _INDEXES[ident] = BagIndex(files, topics)
+        _INDEXES[ident] = BagIndex(files, topics, recovered=recovered)
     return _INDEXES[ident]
+
+
+def _warn_cut_short(path: Path, messages: int) -> None:
+    """The one warning for a file read without its summary (cut short)."""
+    warnings.warn(
+        f"{path}: no summary or index (cut short, as a recorder stopped mid-write leaves it): "
+        f"read its {messages} whole messages up to the cut; what was written after is lost",
+        RuntimeWarning,
+        stacklevel=4,
+    )
 
 
 def read_message(index: BagIndex, topic: str, position: int) -> Any:
@@ -261,8 +303,7 @@ def header_stamp_ns(index: BagIndex, topic: str, position: int) -> int:
     """The header stamp (ns) of a message with a ``std_msgs/Header`` (kept once read)."""
     key = (topic, position)
     if key not in index.stamps:
-        stamp = read_message(index, topic, position).header.stamp
-        index.stamps[key] = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        index.stamps[key] = stamp_ns(read_message(index, topic, position).header)
     return index.stamps[key]
 
 

@@ -135,15 +135,22 @@ def transform_matrix(transform: Any) -> np.ndarray:
     return out
 
 
-def tf_edges(messages: list[Any]) -> dict[str, tuple[str, np.ndarray]]:
-    """{child frame: (parent frame, child → parent 4 × 4)} of TFMessages (the last wins)."""
-    edges = {}
+def stamp_ns(header: Any) -> int:
+    """A ``std_msgs/Header``'s stamp in ns since 1970."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def tf_edges(messages: list[Any], at_ns: int | None = None) -> dict[str, tuple[str, np.ndarray]]:
+    """{child frame: (parent frame, child → parent 4 × 4)} of TFMessages: for each child the
+    transform whose header stamp is nearest ``at_ns`` (None: the last one)."""
+    edges, gaps = {}, {}
     for msg in messages:
         for t in msg.transforms:
-            edges[str(t.child_frame_id).lstrip("/")] = (
-                str(t.header.frame_id).lstrip("/"),
-                transform_matrix(t.transform),
-            )
+            child = str(t.child_frame_id).lstrip("/")
+            gap = 0 if at_ns is None else abs(stamp_ns(t.header) - at_ns)
+            if child not in gaps or gap <= gaps[child]:
+                gaps[child] = gap
+                edges[child] = (str(t.header.frame_id).lstrip("/"), transform_matrix(t.transform))
     return edges
 
 
