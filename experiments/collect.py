@@ -16,6 +16,7 @@ import pyarrow as pa
 from experiments import progress, store
 from experiments.paths import shown
 from experiments.sweep.finished import nothing_computed_line, summary_head
+from ttc.atomic import remove_stale_temporaries
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
 SETTING_COLUMNS = list(SETTING_AXES)
@@ -137,11 +138,13 @@ def summarise_sweep(
     reported in one line: the stored data stands). :class:`store.StoreError` names a missing
     or corrupt rows file. ``data_dir`` / ``cache_dir``: None for the configured defaults.
 
-    Nothing is merged or written (the store is append-only). Only the lead rows are loaded
+    Nothing is merged or written (the store is append-only); temporary files of killed jobs
+    are removed. Only the lead rows are loaded
     (the ranking's rows), so a sweep of millions of rows is summarised without loading it
     whole. ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be
     the one printed before)."""
     sweep_dir = Path(sweep_dir)
+    remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
     records = store.list_records(sweep_dir)
     runs = store.runs_table(records)
     n_rows = store.row_count(records)

@@ -26,7 +26,6 @@ import itertools
 import os
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,6 +51,7 @@ from experiments.store.files import (
     store_lock,
     write_json_atomic,
 )
+from ttc.atomic import remove_stale_temporaries, temporary_prefix
 
 try:
     import fcntl
@@ -64,8 +64,6 @@ TARGET_ROWS = 1_000_000
 PARTITION_COLUMNS = ("detector", "descriptor")
 #: Consecutive rows of one partition are written as one row group up to this many rows.
 ROW_GROUP_ROWS = 200_000
-#: Temporary files older than this are left by killed processes and removed.
-STALE_TMP_S = 3600.0
 #: Held (non-blocking) by the one compaction of a folder.
 COMPACT_LOCK = ".compact.lock"
 
@@ -138,7 +136,7 @@ def _write_rows(path: str, group: list[Fragment]) -> None:
 def write_merged(group: list[Fragment], runs_dir: Path) -> tuple[Path, str]:
     """Write the live rows of ``group`` (in order) into one new file, named by its content;
     (its path, SHA-256)."""
-    fd, tmp = tempfile.mkstemp(dir=runs_dir, prefix=".compact-", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=runs_dir, prefix=temporary_prefix("compact"), suffix=".tmp")
     os.close(fd)
     try:
         _write_rows(tmp, group)
@@ -179,15 +177,11 @@ def swap(sweep_dir: Path, group: list[Fragment], path: Path, sha: str) -> bool:
 
 
 def remove_dead_files(sweep_dir: Path) -> int:
-    """Remove rows files no ``ok`` record names, temporary files older than
-    :data:`STALE_TMP_S` and the merged files of earlier versions; how many."""
+    """Remove rows files no ``ok`` record names, temporary files of killed writers
+    (:func:`ttc.atomic.remove_stale_temporaries`) and the merged files of earlier versions;
+    how many."""
     runs_dir = Path(sweep_dir) / RUNS_DIR
-    removed = 0
-    for stale in runs_dir.glob(".*.tmp"):
-        with contextlib.suppress(OSError):
-            if time.time() - stale.stat().st_mtime > STALE_TMP_S:
-                stale.unlink()
-                removed += 1
+    removed = remove_stale_temporaries(runs_dir)
     for name in LEGACY_MERGED_FILES:
         if (Path(sweep_dir) / name).is_file():
             (Path(sweep_dir) / name).unlink()
