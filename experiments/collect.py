@@ -11,9 +11,9 @@ import argparse
 from pathlib import Path
 
 import pandas as pd
-import pyarrow as pa
 
 from experiments import progress, store
+from experiments.lead_cache import lead_rows
 from experiments.paths import shown
 from experiments.sweep.finished import nothing_computed_line, summary_head
 from ttc.atomic import remove_stale_temporaries
@@ -27,8 +27,6 @@ SETTING_COLUMNS = list(SETTING_AXES)
 FUSED_SHOWN = 3
 #: Axes that change only the lidar TTC: a sweep varying nothing else is ranked on the lidar.
 LIDAR_ONLY_AXES = only_sensor_axes("lidar")
-#: Rows read at once to find the lead rows (~0.2 GB as pandas frames; ``grand`` has 3 million).
-LEAD_READ_ROWS = 200_000
 #: The axis that changes only the fused TTC.
 (FUSION_AXIS,) = only_sensor_axes("fused")
 
@@ -98,33 +96,6 @@ def pooled_runs(
     return pooled[[c for c in columns if c in pooled]].sort_values("rank", ignore_index=True)
 
 
-def lead_rows(sweep_dir: Path, records: list[dict] | None = None) -> pd.DataFrame:
-    """One row per run × frame pair of a sweep, the lead vehicle's
-    (:func:`ttc.evaluation.lead_rows`: else the pair's first row, its estimates blanked),
-    without the columns no metric reads (:data:`ttc.evaluation.NOT_JUDGED_COLUMNS`). Read
-    fragments at a time, reduced every :data:`LEAD_READ_ROWS` rows (a run's rows are in one
-    fragment): the whole of ``grand``'s 3 million rows would take 2.9 GB. ``records``: the
-    sweep's :func:`store.list_records`, when already read."""
-    from experiments.store.dataset import fragments, iter_tables, unified_schema  # noqa: PLC0415
-    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
-
-    frags = fragments(sweep_dir, records)
-    schema = unified_schema(frags)
-    if schema is None:
-        return pd.DataFrame()
-    columns = [c for c in schema.names if c not in ev.NOT_JUDGED_COLUMNS]
-    parts, pending = [], []
-    for table in iter_tables(frags, schema, columns):
-        pending.append(table)
-        if sum(t.num_rows for t in pending) >= LEAD_READ_ROWS:
-            parts.append(ev.lead_rows(pa.concat_tables(pending).to_pandas()))
-            pending.clear()
-    if pending or not parts:
-        whole = pa.concat_tables(pending) if pending else schema.empty_table().select(columns)
-        parts.append(ev.lead_rows(whole.to_pandas()) if whole.num_rows else whole.to_pandas())
-    return pd.concat(parts, ignore_index=True) if len(parts) > 1 else parts[0]
-
-
 def summarise_sweep(
     sweep_dir: Path,
     top: int = 5,
@@ -141,7 +112,8 @@ def summarise_sweep(
     Nothing is merged or written (the store is append-only); temporary files of killed jobs
     are removed. Only the lead rows are loaded
     (the ranking's rows), so a sweep of millions of rows is summarised without loading it
-    whole. ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be
+    whole, and those of the fragments an earlier summary read are kept
+    (:mod:`experiments.lead_cache`). ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be
     the one printed before)."""
     sweep_dir = Path(sweep_dir)
     remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs

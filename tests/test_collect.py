@@ -35,17 +35,15 @@ def test_a_fusion_sweep_ranks_on_the_fused_ttc() -> None:
     )
 
 
-@pytest.mark.parametrize("chunk_rows", [3, 200_000])
-def test_lead_rows_read_by_fragment_are_the_whole_sweeps(tmp_path, monkeypatch, chunk_rows) -> None:
-    """The summary's rows (read a fragment at a time, reduced every ``chunk_rows`` rows,
-    without the columns no metric reads) are :func:`ttc.evaluation.lead_rows` of all rows: a
-    pair without a lead row keeps its first row, blanked."""
+def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
+    """The summary's rows (a fragment at a time, without the columns no metric reads, kept
+    in ``.summary/`` and read back by the next summary) are :func:`ttc.evaluation.lead_rows`
+    of all rows: a pair without a lead row keeps its first row, blanked."""
     import numpy as np
 
-    from experiments import collect, store
+    from experiments import lead_cache, store
     from ttc import evaluation as ev
 
-    monkeypatch.setattr(collect, "LEAD_READ_ROWS", chunk_rows)
     rows = pd.DataFrame(
         {
             "run_id": ["a", "a", "a", "a", "b", "b", "b", "b"],
@@ -57,10 +55,21 @@ def test_lead_rows_read_by_fragment_are_the_whole_sweeps(tmp_path, monkeypatch, 
     )
     for run_id, own in rows.groupby("run_id"):
         store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 4}, own)
-    got = collect.lead_rows(tmp_path).sort_values(["run_id", "frame"], ignore_index=True)
     whole = ev.lead_rows(rows.drop(columns="git_commit"))
-    pd.testing.assert_frame_equal(got, whole.sort_values(["run_id", "frame"], ignore_index=True))
-    np.testing.assert_array_equal(got["ttc_camera"], [1.0, np.nan, 2.0, 3.0])  # a/2: no lead
+    computed = lead_cache.lead_rows(tmp_path)
+    assert len(list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet"))) == 2
+    kept = lead_cache.lead_rows(tmp_path)
+    for got in (computed, kept):
+        got = got.sort_values(["run_id", "frame"], ignore_index=True)
+        pd.testing.assert_frame_equal(
+            got, whole.sort_values(["run_id", "frame"], ignore_index=True)
+        )
+    np.testing.assert_array_equal(kept["ttc_camera"], [1.0, np.nan, 2.0, 3.0])  # a/2: no lead
+    # a run recomputed into another fragment: the old fragment's kept rows are not used
+    redo = rows[rows["run_id"] == "a"].assign(ttc_camera=[9.0, 4.0, 8.0, 7.0])
+    store.save_batch(tmp_path, "batch-x", [{"run_id": "a", "status": "ok", "n_rows": 4}], redo)
+    again = lead_cache.lead_rows(tmp_path)
+    np.testing.assert_array_equal(again["ttc_camera"], [4.0, np.nan, 2.0, 3.0])
 
 
 def _sweep_of_runs(folder, n_runs: int) -> None:
