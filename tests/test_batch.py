@@ -241,7 +241,8 @@ def _kill_holders(sweep: Path, proc: subprocess.Popen) -> list[int]:
 
 def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir) -> None:
     """The end-of-sweep summary reads only the lead rows and the columns the metrics read
-    (:func:`experiments.collect.lead_rows`); its ranking is the ranking of every row."""
+    (:func:`experiments.lead_cache.lead_rows`, kept per fragment by the sweep's summary and
+    read back here); its ranking is the ranking of every row."""
     from experiments.collect import lead_rows, ranked_runs
     from experiments.reference_store import recording_references
     from ttc.engine.cache import StageCache
