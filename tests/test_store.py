@@ -145,6 +145,33 @@ def test_a_corrupt_fragment_is_named_and_compaction_changes_nothing(tmp_path) ->
     assert "Traceback" not in res.stderr
 
 
+def test_the_records_index_never_hides_a_changed_record(tmp_path, monkeypatch) -> None:
+    """Listing through the index gives what reading every record file gives, after a record
+    was replaced, with a damaged index file, and after ``compact`` folded the index."""
+    import json
+
+    from experiments.store import record_index
+
+    monkeypatch.setattr(record_index, "WRITE_AT_LEAST", 1)
+    synthetic_sweep(tmp_path)
+
+    def from_files() -> list[dict]:
+        files = sorted((tmp_path / store.RUNS_DIR).glob("*.json"))
+        return [json.loads(p.read_text()) for p in files]
+
+    assert store.list_records(tmp_path) == from_files()
+    index_dir = tmp_path / record_index.INDEX_DIR
+    assert len(list(index_dir.glob("index-*.pkl"))) == 1
+    store.save_run(tmp_path, {"run_id": "f1", "status": "ok", "n_rows": 1}, rows_of("f1", 1, 7.0))
+    listed = store.list_records(tmp_path)
+    assert listed == from_files() and listed[-1]["status"] == "ok"
+    next(index_dir.glob("index-*.pkl")).write_bytes(b"not a pickle")
+    assert store.list_records(tmp_path) == from_files()
+    store.compact(tmp_path)
+    assert len(list(index_dir.glob("index-*.pkl"))) == 1
+    assert store.list_records(tmp_path) == from_files()
+
+
 # -- real sweeps ----------------------------------------------------------------------------
 def sweep_cmd(args: list[str], tmp: Path) -> tuple[list[str], dict[str, str]]:
     """The command line and environment of a sweep into ``<tmp>/sweeps/shared``."""

@@ -60,7 +60,6 @@ from experiments.store.files import (
     NO_RECORD,
     RUNS_DIR,
     StoreError,
-    list_records,
     parquet_bytes,
     read_record,
     read_rows,
@@ -72,6 +71,7 @@ from experiments.store.files import (
     write_json_atomic,
     write_parquet_atomic,
 )
+from experiments.store.record_index import list_records
 
 #: The glob of a sweep's rows fragments, relative to the sweep folder (module docstring).
 ROWS_GLOB = f"{RUNS_DIR}/*.parquet"

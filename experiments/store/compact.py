@@ -13,7 +13,8 @@ between the check and the change), the records of its runs are checked to still 
 old files and are repointed one by one (each record names one valid file at every moment:
 a reader sees each run once), and the old files are removed. Rows no record names (a run
 recomputed since, a job killed between its rows and its records) are dropped, so
-``runs/*.parquet`` then holds exactly the live rows. A corrupt fragment is named and nothing
+``runs/*.parquet`` then holds exactly the live rows; the records' index files are folded into
+one (:mod:`experiments.store.record_index`). A corrupt fragment is named and nothing
 is changed. Safe while sweeps write into the folder.
 """
 
@@ -44,13 +45,13 @@ from experiments.store.files import (
     LEGACY_MERGED_FILES,
     RUNS_DIR,
     StoreError,
-    list_records,
     read_record,
     rows_path,
     run_paths,
     store_lock,
     write_json_atomic,
 )
+from experiments.store.record_index import fold_index, list_records
 from ttc.atomic import remove_stale_temporaries, temporary_prefix
 
 try:
@@ -221,7 +222,7 @@ def compact(sweep_dir: Path, target_rows: int = TARGET_ROWS) -> Compaction:
                 done.runs += sum(len(f.n_rows) for f in group)
             else:
                 done.skipped_groups += 1
-        done.removed = remove_dead_files(sweep_dir)
+        done.removed = remove_dead_files(sweep_dir) + fold_index(sweep_dir)
     return done
 
 

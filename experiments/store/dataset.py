@@ -18,10 +18,10 @@ from experiments.store.completeness import Checks, rows_problem
 from experiments.store.files import (
     RUNS_DIR,
     StoreError,
-    list_records,
     read_checked_table,
     rows_path,
 )
+from experiments.store.record_index import list_records
 
 #: Threads reading fragments (Arrow releases the GIL while it decodes).
 READ_THREADS = 2

@@ -167,12 +167,3 @@ def save_batch(
                     record.update(rows_file=name, rows_sha256=sha)
         for record in records:
             write_json_atomic(record, run_paths(sweep_dir, record["run_id"])[1], indent=None)
-
-
-def list_records(sweep_dir: Path) -> list[dict[str, Any]]:
-    """Every readable run record of a sweep, sorted by run id."""
-    records = []
-    for path in sorted((Path(sweep_dir) / RUNS_DIR).glob("*.json"), key=lambda p: p.name):
-        with contextlib.suppress(ValueError, OSError):
-            records.append(json.loads(path.read_text()))
-    return records
