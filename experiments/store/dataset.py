@@ -19,7 +19,6 @@ from experiments.store.files import (
     RUNS_DIR,
     StoreError,
     read_checked_table,
-    rows_path,
 )
 from experiments.store.record_index import list_records
 
@@ -50,17 +49,21 @@ def fragments(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> l
     smallest run id: the order of the rows of :func:`read_table` (``records``: the sweep's
     :func:`list_records`, when already read)."""
     records = list_records(sweep_dir) if records is None else records
-    by_path: dict[Path, Fragment] = {}
+    runs_dir = Path(sweep_dir) / RUNS_DIR
+    by_name: dict[str, Fragment] = {}  # by file name: one Path per fragment, not per run
     for record in records:
         if record.get("status") != "ok":
             continue
-        path = rows_path(sweep_dir, record)
-        frag = by_path.setdefault(path, Fragment(path, record.get("rows_sha256")))
+        run_id, shared = record["run_id"], record.get("rows_file")
+        name = shared or f"{run_id}.parquet"
+        frag = by_name.get(name)
+        if frag is None:
+            frag = by_name[name] = Fragment(runs_dir / name, record.get("rows_sha256"))
         if record.get("rows_sha256") != frag.sha256:
-            raise StoreError(path, "records disagree on the rows file's SHA-256")
-        frag.n_rows[record["run_id"]] = int(record.get("n_rows") or 0)
-        frag.own = frag.own or not record.get("rows_file")
-    return sorted(by_path.values(), key=lambda f: min(f.n_rows))
+            raise StoreError(frag.path, "records disagree on the rows file's SHA-256")
+        frag.n_rows[run_id] = int(record.get("n_rows") or 0)
+        frag.own = frag.own or not shared
+    return sorted(by_name.values(), key=lambda f: min(f.n_rows))
 
 
 def check_fragments(frags: list[Fragment], checks: Checks | None = None) -> None:
