@@ -82,6 +82,6 @@ def lead_rows(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> p
         parts[i] = pa.Table.from_pandas(lead, preserve_index=False)
         with contextlib.suppress(OSError):  # a read-only sweep folder: nothing kept
             write_parquet_atomic(lead, cache_path(sweep_dir, frags[i], key))
-    # one conversion of the whole (140 small ones and a concat of frames took 3x as long)
+    # one conversion of the whole (140 conversions and a concat of frames: 4.9 s against 3.7 s)
     ordered = [parts[i] for i in range(len(frags))]
     return pa.concat_tables(ordered, promote_options="permissive").to_pandas()
