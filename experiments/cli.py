@@ -32,7 +32,7 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     ),
     "collect": Subcommand("experiments.collect", "print a sweep's summary (counts, best settings)"),
     "compact": Subcommand(
-        "experiments.store.compact", "merge a sweep's small rows files into larger ones"
+        "experiments.tools.compact", "merge a sweep's small rows files into larger ones"
     ),
     "report": Subcommand("experiments.report", "write the FP.5 / FP.6 reports of sweeps"),
     "compare": Subcommand("experiments.tools.compare", "compare two sweeps setting by setting"),

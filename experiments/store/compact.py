@@ -1,8 +1,5 @@
-"""``ttc-bench compact SWEEP``: merge a sweep's small rows files into larger ones, atomically.
-
-Usage::
-
-    ttc-bench compact sweeps/grand_kitti_0_18 [--target-rows 1000000]
+"""A sweep's small rows files merged into larger ones, atomically (``ttc-bench compact``,
+:mod:`experiments.tools.compact`).
 
 Consecutive fragments (in the dataset's order, :func:`experiments.store.dataset.fragments`)
 are merged into ``runs/compact-<first 12 hex digits of its SHA-256>.parquet`` of at most
@@ -20,12 +17,10 @@ is changed. Safe while sweeps write into the folder.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import hashlib
 import itertools
 import os
-import sys
 import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -224,24 +219,3 @@ def compact(sweep_dir: Path, target_rows: int = TARGET_ROWS) -> Compaction:
                 done.skipped_groups += 1
         done.removed = remove_dead_files(sweep_dir) + fold_index(sweep_dir)
     return done
-
-
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("sweep_dir", type=Path, help="the sweep folder (hydra.sweep.dir)")
-    parser.add_argument("--target-rows", type=int, default=TARGET_ROWS,
-                        help="rows of a merged file, at most (default %(default)s)")  # fmt: skip
-    args = parser.parse_args(argv)
-    try:
-        done = compact(args.sweep_dir, args.target_rows)
-    except StoreError as exc:
-        parser.exit(1, f"compact failed: {exc}\n")
-    print(f"{args.sweep_dir}: {done.merged} rows files merged into {done.written} "
-          f"({done.runs} runs repointed), {done.removed} files no record names removed"
-          + (f", {done.skipped_groups} group(s) left: a run was recomputed meanwhile"
-             if done.skipped_groups else ""))  # fmt: skip
-    sys.stdout.flush()
-
-
-if __name__ == "__main__":
-    main()
