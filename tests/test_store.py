@@ -145,6 +145,22 @@ def test_a_corrupt_fragment_is_named_and_compaction_changes_nothing(tmp_path) ->
     assert "Traceback" not in res.stderr
 
 
+def test_merged_files_of_earlier_versions_are_never_read_and_compact_removes_them(
+    tmp_path,
+) -> None:
+    """A sweep folder of an earlier version holds ``frames.parquet`` / ``runs.parquet``
+    merged once: stale as soon as a run is added, so readers take the fragments only."""
+    synthetic_sweep(tmp_path)
+    expected = store.load_sweep(tmp_path)[0]
+    stale = rows_of("zz", 5, 0.0)
+    for name in store.LEGACY_MERGED_FILES:
+        store.write_parquet_atomic(stale, tmp_path / name)
+    assert store.load_sweep(tmp_path)[0].equals(expected)
+    store.compact(tmp_path)
+    assert not any((tmp_path / name).exists() for name in store.LEGACY_MERGED_FILES)
+    assert store.load_sweep(tmp_path)[0].equals(expected)
+
+
 def test_the_records_index_never_hides_a_changed_record(tmp_path, monkeypatch) -> None:
     """Listing through the index gives what reading every record file gives, after a record
     was replaced, with a damaged index file, and after ``compact`` folded the index."""
