@@ -1,10 +1,10 @@
-"""Hydra callbacks of a sweep: a progress bar with time left, the merge and the exit status at
-the end, and a record for a job whose process died.
+"""Hydra callbacks of a sweep: a progress bar with time left, the summary and the exit status
+at the end, and a record for a job whose process died.
 
 Following Hydra's convention for partial failures (hydra#1465: every job of the batch runs,
 then the multirun reports that some failed), a sweep runs every setting, prints the failures
-in its summary and then exits with status 1 when a setting of this invocation failed or the
-merge failed. ``skipped`` (an invalid detector × descriptor pair) is not a failure.
+in its summary and then exits with status 1 when a setting of this invocation failed or a
+stored rows file is unreadable. ``skipped`` (an invalid detector × descriptor pair) is not a failure.
 """
 
 from __future__ import annotations
@@ -62,7 +62,8 @@ _PROGRESS: dict[str, Any] = {}
 
 
 class SweepCallback(Callback):
-    """Shows sweep progress and merges all runs into one dataset when the sweep ends."""
+    """Shows sweep progress and summarises the sweep when it ends (nothing is merged: the
+    store is append-only, :mod:`experiments.store`)."""
 
     def __init__(self, poll_seconds: float = 1.0) -> None:
         self.poll_seconds = poll_seconds
@@ -107,7 +108,7 @@ class SweepCallback(Callback):
         record_crash(config, Path(config.hydra.sweep.dir), message)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        """Merge and summarise the sweep; exit 1 when a setting or the merge failed."""
+        """Summarise the sweep; exit 1 when a setting failed or a rows file is unreadable."""
         stop_progress()
         from experiments.collect import summarise_sweep  # noqa: PLC0415 (slow imports)
 
@@ -123,10 +124,10 @@ class SweepCallback(Callback):
                 unchanged=unchanged,
             )
         except (StoreError, OSError) as exc:
-            problems.append(f"merge failed, no {sweep_dir}/frames.parquet: {exc}")
-        except KeyboardInterrupt:  # Ctrl-C during the merge: every setting is done
-            print(f"interrupted during the merge: every setting is done; `python -m "
-                  f"experiments.collect {sweep_dir}` merges them", file=sys.stderr)  # fmt: skip
+            problems.append(f"stored rows unreadable: {exc}")
+        except KeyboardInterrupt:  # Ctrl-C during the summary: every setting is done
+            print(f"interrupted during the summary: every setting is done; `python -m "
+                  f"experiments.collect {sweep_dir}` summarises them", file=sys.stderr)  # fmt: skip
             sys.exit(INTERRUPTED_STATUS)
         if (failed := outcomes.count("failed")) > 0:
             problems.append(f"{failed} setting(s) failed (listed above); a re-run retries them")

@@ -30,7 +30,10 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     "sweep": Subcommand(
         "experiments.run", "run a sweep: `run -m` with the same overrides", ("-m",)
     ),
-    "collect": Subcommand("experiments.collect", "merge a sweep's runs and print its summary"),
+    "collect": Subcommand("experiments.collect", "print a sweep's summary (counts, best settings)"),
+    "compact": Subcommand(
+        "experiments.tools.compact", "merge a sweep's small rows files into larger ones"
+    ),
     "report": Subcommand("experiments.report", "write the FP.5 / FP.6 reports of sweeps"),
     "compare": Subcommand("experiments.tools.compare", "compare two sweeps setting by setting"),
     "show": Subcommand("experiments.tools.show", "pictures of one frame pair of one setting"),

@@ -1,4 +1,4 @@
-"""Merge a sweep's runs into one dataset and print its summary (also for interrupted sweeps).
+"""Print a sweep's summary: counts, failures, best settings (also for interrupted sweeps).
 
 Usage::
 
@@ -11,11 +11,12 @@ import argparse
 from pathlib import Path
 
 import pandas as pd
-import pyarrow.parquet as pq
 
 from experiments import progress, store
+from experiments.lead_cache import lead_rows
 from experiments.paths import shown
 from experiments.sweep.finished import nothing_computed_line, summary_head
+from ttc.atomic import remove_stale_temporaries
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
 SETTING_COLUMNS = list(SETTING_AXES)
@@ -26,8 +27,6 @@ SETTING_COLUMNS = list(SETTING_AXES)
 FUSED_SHOWN = 3
 #: Axes that change only the lidar TTC: a sweep varying nothing else is ranked on the lidar.
 LIDAR_ONLY_AXES = only_sensor_axes("lidar")
-#: Rows read at once to find the lead rows (~0.2 GB as pandas frames; ``grand`` has 3 million).
-LEAD_READ_ROWS = 200_000
 #: The axis that changes only the fused TTC.
 (FUSION_AXIS,) = only_sensor_axes("fused")
 
@@ -97,41 +96,6 @@ def pooled_runs(
     return pooled[[c for c in columns if c in pooled]].sort_values("rank", ignore_index=True)
 
 
-def lead_rows(sweep_dir: Path) -> pd.DataFrame:
-    """One row per run × frame pair of a merged sweep, the lead vehicle's
-    (:func:`ttc.evaluation.lead_rows`: else the pair's first row, its estimates blanked),
-    without the columns no metric reads (:data:`ttc.evaluation.NOT_JUDGED_COLUMNS`). Read a
-    row group at a time: the whole of ``grand``'s 3 million rows would take 2.9 GB."""
-    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
-
-    file = pq.ParquetFile(Path(sweep_dir) / store.FRAMES_FILE)
-    columns = [c for c in file.schema_arrow.names if c not in ev.NOT_JUDGED_COLUMNS]
-    parts = [
-        ev.lead_rows(file.read_row_groups(groups, columns=columns).to_pandas())
-        for groups in _row_group_chunks(file.metadata)
-    ]
-    if not parts:
-        return file.schema_arrow.empty_table().select(columns).to_pandas()
-    # a run's rows of one frame pair may straddle two row groups: reduce once more
-    return ev.lead_rows(pd.concat(parts, ignore_index=True)) if len(parts) > 1 else parts[0]
-
-
-def _row_group_chunks(metadata: pq.FileMetaData) -> list[list[int]]:
-    """Consecutive row groups of a parquet file in chunks of at most :data:`LEAD_READ_ROWS`
-    rows (a row group larger than that is a chunk of its own). Reading 140 small row groups
-    one by one cost a 74,000-row sweep 1.1 s; a chunk is read and reduced at once."""
-    chunks: list[list[int]] = []
-    rows = 0
-    for group in range(metadata.num_row_groups):
-        n = metadata.row_group(group).num_rows
-        if not chunks or rows + n > LEAD_READ_ROWS:
-            chunks.append([])
-            rows = 0
-        chunks[-1].append(group)
-        rows += n
-    return chunks
-
-
 def summarise_sweep(
     sweep_dir: Path,
     top: int = 5,
@@ -139,19 +103,23 @@ def summarise_sweep(
     cache_dir: Path | None = None,
     unchanged: bool = False,
 ) -> pd.DataFrame:
-    """Collect the sweep (:class:`store.StoreError` naming a corrupt rows file), print where
-    the dataset is, the run counts, the failures and the best settings: ranked against the
-    reference TTC by :mod:`ttc.evaluation`'s rule (no ranking, with the reason, when no
-    reference can be built; a ranking that raises is reported in one line: the merged data
-    stands). ``data_dir`` / ``cache_dir``: None for the configured defaults.
+    """Summarise the sweep: print where the dataset is, the run counts, the failures and the
+    best settings: ranked against the reference TTC by :mod:`ttc.evaluation`'s rule (no
+    ranking, with the reason, when no reference can be built; a ranking that raises is
+    reported in one line: the stored data stands). :class:`store.StoreError` names a missing
+    or corrupt rows file. ``data_dir`` / ``cache_dir``: None for the configured defaults.
 
-    Only the lead rows are loaded (the ranking's rows), so a sweep of millions of rows is
-    summarised without loading it whole. ``unchanged=True`` (nothing was computed and the
-    merge is current): counts only, no ranking (it would be the one printed before)."""
+    Nothing is merged or written (the store is append-only); temporary files of killed jobs
+    are removed. Only the lead rows are loaded
+    (the ranking's rows), so a sweep of millions of rows is summarised without loading it
+    whole, and those of the fragments an earlier summary read are kept
+    (:mod:`experiments.lead_cache`). ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be
+    the one printed before)."""
     sweep_dir = Path(sweep_dir)
-    unchanged = unchanged and store.merge_is_current(sweep_dir)
-    runs = pd.read_parquet(sweep_dir / store.RUNS_FILE) if unchanged else store.merge(sweep_dir)
-    n_rows = store.merged_row_count(sweep_dir)
+    remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
+    records = store.list_records(sweep_dir)
+    runs = store.runs_table(records)
+    n_rows = store.row_count(records)
     folder = progress.progress_dir(sweep_dir)
     outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None
     statuses = [] if runs.empty else runs["status"].astype(str).tolist()
@@ -165,12 +133,12 @@ def summarise_sweep(
     if unchanged:
         print(nothing_computed_line(sweep_dir))
         return pd.DataFrame()
-    frames = lead_rows(sweep_dir) if n_rows else pd.DataFrame()
+    frames = lead_rows(sweep_dir, records) if n_rows else pd.DataFrame()
     if frames.empty:
         return pd.DataFrame()
     try:
         tables = _best(frames, runs, data_dir, cache_dir)
-    except Exception as exc:  # the merge stands; the ranking is the report's job
+    except Exception as exc:  # the rows stand; the ranking is the report's job
         print(f"\n(no ranking: {type(exc).__name__}: {exc})")
         return pd.DataFrame()
     if not tables:
@@ -244,7 +212,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         summarise_sweep(args.sweep_dir, args.top)
     except store.StoreError as exc:
-        parser.exit(1, f"merge failed: {exc}\n(re-run the sweep to recompute that run)\n")
+        parser.exit(1, f"collect failed: {exc}\n(re-run the sweep to recompute that run)\n")
 
 
 if __name__ == "__main__":

@@ -140,9 +140,10 @@ def test_a_recomputed_setting_of_a_batch_keeps_the_others(two_ways, tmp_path) ->
     assert old["rows_file"] == victim["rows_file"] and store.is_complete(sweep, old["run_id"])
 
 
-def test_grand_style_sweep_merges_into_partitions(tmp_path) -> None:
+def test_grand_style_sweep_compacts_into_partitions(tmp_path) -> None:
     """``+experiment=grand`` with two values per axis on frames 0-2 (128 settings, 32 of an
-    invalid pair): merged, and a query of one partition reads only its row groups."""
+    invalid pair): compacted into one file, and a query of one partition reads only its row
+    groups."""
     args = ["+experiment=grand", "detector=fast,akaze", "descriptor=brief,akaze",
             "matcher=bf,flann", "selector=nn,knn", "box_matching=mutual_best,hungarian",
             "lidar_ttc=median,cluster", "keypoint_filter=none,zscore",
@@ -152,13 +153,14 @@ def test_grand_style_sweep_merges_into_partitions(tmp_path) -> None:
     assert "sweep plan: 256 settings" in res.stdout
     assert "64 skipped as invalid" in res.stdout  # fast x akaze, each of its 64 settings
     sweep = tmp_path / "sweeps" / "g"
-    runs = pd.read_parquet(sweep / store.RUNS_FILE)
+    runs = store.load_runs(sweep)
     assert len(runs) == 256 and runs["status"].value_counts().to_dict() == {
         "ok": 192,
         "skipped": 64,
     }
     assert (runs.loc[runs["status"] == "skipped", "skipped_at"] == "plan").all()
-    path = sweep / store.FRAMES_FILE
+    assert store.compact(sweep).written == 1
+    (path,) = (sweep / store.RUNS_DIR).glob("*.parquet")
     meta = pq.ParquetFile(path).metadata
     columns = {meta.schema.column(i).name: i for i in range(meta.num_columns)}
     groups = []
@@ -198,7 +200,7 @@ def test_a_setting_that_kills_its_batch_worker_costs_only_itself(kitti_dir, tmp_
     assert len(killed) == 3, killed  # the batch in the pool, the batch alone, the setting alone
     assert proc.returncode == 1, err[-3000:]
     assert "sweep incomplete: 1 setting(s) failed" in err
-    runs = pd.read_parquet(sweep / store.RUNS_FILE)
+    runs = store.load_runs(sweep)
     failed = runs[runs["status"] == "failed"]
     pairs = list(zip(failed["descriptor"], failed["keypoint_filter"], strict=True))
     assert pairs == [("orb", "zscore")]
@@ -239,7 +241,8 @@ def _kill_holders(sweep: Path, proc: subprocess.Popen) -> list[int]:
 
 def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir) -> None:
     """The end-of-sweep summary reads only the lead rows and the columns the metrics read
-    (:func:`experiments.collect.lead_rows`); its ranking is the ranking of every row."""
+    (:func:`experiments.lead_cache.lead_rows`, kept per fragment by the sweep's summary and
+    read back here); its ranking is the ranking of every row."""
     from experiments.collect import lead_rows, ranked_runs
     from experiments.reference_store import recording_references
     from ttc.engine.cache import StageCache

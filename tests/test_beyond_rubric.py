@@ -167,10 +167,10 @@ def test_a_klt_sweep_runs_once_per_detector(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "experiments.run", *args], cwd=PROJECT_ROOT,
                           env=env, capture_output=True, text=True, timeout=900)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
-    runs = pd.read_parquet(tmp_path / "sweeps" / "klt" / store.RUNS_FILE)
+    runs = store.load_runs(tmp_path / "sweeps" / "klt")
     assert len(runs) == 2 and (runs["status"] == "ok").all()
     assert set(runs["descriptor"]) == {"none"} and set(runs["detector"]) == {"fast", "orb"}
-    frames = pd.read_parquet(tmp_path / "sweeps" / "klt" / store.FRAMES_FILE)
+    frames = store.load_sweep(tmp_path / "sweeps" / "klt")[0]
     lead = frames[frames["is_lead"]]
     assert len(lead) == 2 * 3 and (lead["fusion"] == "kalman_cv").all()
     assert lead["ttc_fused"].notna().all()

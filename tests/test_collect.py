@@ -35,21 +35,13 @@ def test_a_fusion_sweep_ranks_on_the_fused_ttc() -> None:
     )
 
 
-@pytest.mark.parametrize("chunk_rows", [3, 6, 200_000])
-def test_lead_rows_read_by_row_group_are_the_whole_files(tmp_path, monkeypatch, chunk_rows) -> None:
-    """The summary's rows (read in chunks of row groups, without the columns no metric reads)
-    are :func:`ttc.evaluation.lead_rows` of the whole file: a pair without a lead row keeps
-    its first row, blanked, also when the pair's rows straddle two chunks (row groups of 3, 3
-    and 2 rows read one by one, as 6 + 2 rows, or at once)."""
-    from experiments import collect
-
-    monkeypatch.setattr(collect, "LEAD_READ_ROWS", chunk_rows)
+def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
+    """The summary's rows (a fragment at a time, without the columns no metric reads, kept
+    in ``.summary/`` and read back by the next summary) are :func:`ttc.evaluation.lead_rows`
+    of all rows: a pair without a lead row keeps its first row, blanked."""
     import numpy as np
-    import pyarrow as pa
-    import pyarrow.parquet as pq
 
-    from experiments import store
-    from experiments.collect import lead_rows
+    from experiments import lead_cache, store
     from ttc import evaluation as ev
 
     rows = pd.DataFrame(
@@ -61,14 +53,23 @@ def test_lead_rows_read_by_row_group_are_the_whole_files(tmp_path, monkeypatch, 
             "git_commit": ["c0ffee"] * 8,  # read by no metric: left unread
         }
     )
-    pq.write_table(pa.Table.from_pandas(rows), tmp_path / store.FRAMES_FILE, row_group_size=3)
-    assert pq.ParquetFile(tmp_path / store.FRAMES_FILE).num_row_groups == 3
-    groups = collect._row_group_chunks(pq.ParquetFile(tmp_path / store.FRAMES_FILE).metadata)
-    assert groups == {3: [[0], [1], [2]], 6: [[0, 1], [2]], 200_000: [[0, 1, 2]]}[chunk_rows]
-    got = lead_rows(tmp_path).sort_values(["run_id", "frame"], ignore_index=True)
+    for run_id, own in rows.groupby("run_id"):
+        store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 4}, own)
     whole = ev.lead_rows(rows.drop(columns="git_commit"))
-    pd.testing.assert_frame_equal(got, whole.sort_values(["run_id", "frame"], ignore_index=True))
-    np.testing.assert_array_equal(got["ttc_camera"], [1.0, np.nan, 2.0, 3.0])  # a/2: no lead
+    computed = lead_cache.lead_rows(tmp_path)
+    assert len(list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet"))) == 2
+    kept = lead_cache.lead_rows(tmp_path)
+    for got in (computed, kept):
+        got = got.sort_values(["run_id", "frame"], ignore_index=True)
+        pd.testing.assert_frame_equal(
+            got, whole.sort_values(["run_id", "frame"], ignore_index=True)
+        )
+    np.testing.assert_array_equal(kept["ttc_camera"], [1.0, np.nan, 2.0, 3.0])  # a/2: no lead
+    # a run recomputed into another fragment: the old fragment's kept rows are not used
+    redo = rows[rows["run_id"] == "a"].assign(ttc_camera=[9.0, 4.0, 8.0, 7.0])
+    store.save_batch(tmp_path, "batch-x", [{"run_id": "a", "status": "ok", "n_rows": 4}], redo)
+    again = lead_cache.lead_rows(tmp_path)
+    np.testing.assert_array_equal(again["ttc_camera"], [4.0, np.nan, 2.0, 3.0])
 
 
 def _sweep_of_runs(folder, n_runs: int) -> None:
@@ -88,28 +89,20 @@ def _sweep_of_runs(folder, n_runs: int) -> None:
         store.save_run(folder, {"run_id": f"r{i:03d}", "status": "ok", "n_rows": 3}, rows)
 
 
-def test_the_merge_reads_ahead_without_changing_a_byte_or_hiding_a_corrupt_file(
-    tmp_path, monkeypatch
-) -> None:
-    """Rows files read by threads ahead of the writer give the same ``frames.parquet``, byte
-    for byte, as reading them one at a time; a corrupt file in the middle is named and no
-    merged file is written."""
+def test_the_read_ahead_changes_no_row_and_hides_no_corrupt_file(tmp_path, monkeypatch) -> None:
+    """Fragments read by threads ahead give the same rows, in the same order, as reading them
+    one at a time; a corrupt fragment in the middle is named."""
     from experiments import store
 
-    merge_module = importlib.import_module("experiments.store.merge")  # `store.merge`: a function
+    dataset = importlib.import_module("experiments.store.dataset")
     _sweep_of_runs(tmp_path, 30)
-    store.merge(tmp_path)
-    ahead = (tmp_path / store.FRAMES_FILE).read_bytes()
-    monkeypatch.setattr(merge_module, "READ_AHEAD", 1)
-    monkeypatch.setattr(merge_module, "READ_THREADS", 1)
-    store.merge(tmp_path)
-    assert (tmp_path / store.FRAMES_FILE).read_bytes() == ahead
-    assert pd.read_parquet(tmp_path / store.FRAMES_FILE)["run_id"].nunique() == 30
+    ahead = store.read_table(tmp_path)
+    monkeypatch.setattr(dataset, "READ_THREADS", 1)
+    assert store.read_table(tmp_path).equals(ahead)
+    assert ahead.column("run_id").to_pylist() == [f"r{i:03d}" for i in range(30) for _ in "abc"]
 
     monkeypatch.undo()
-    (tmp_path / store.FRAMES_FILE).unlink()
     bad = tmp_path / store.RUNS_DIR / "r017.parquet"
     bad.write_bytes(bad.read_bytes()[:40])
     with pytest.raises(store.StoreError, match="r017.parquet.*corrupt"):
-        store.merge(tmp_path)
-    assert not (tmp_path / store.FRAMES_FILE).exists()
+        store.read_table(tmp_path)

@@ -47,8 +47,8 @@ def two_drive_sweep(kitti_dir, tmp_path_factory) -> tuple[Path, Path]:
 @pytest.mark.slow  # ~30 s: a Hydra multirun in a subprocess, two drive reports
 def test_a_two_drive_sweep_merges_and_reports_per_drive_and_pooled(two_drive_sweep, tmp_path):
     sweep_dir, root = two_drive_sweep
-    runs = pd.read_parquet(sweep_dir / store.RUNS_FILE)
-    frames = pd.read_parquet(sweep_dir / store.FRAMES_FILE)
+    runs = store.load_runs(sweep_dir)
+    frames = store.load_sweep(sweep_dir)[0]
     assert len(runs) == 4 and (runs["status"] == "ok").all() and runs["run_id"].is_unique
     assert set(runs["dataset"]) == {"kitti_raw"}
     assert len(frames[frames["is_lead"]]) == 2 * (7 + 37)

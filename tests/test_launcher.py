@@ -13,14 +13,13 @@ import sys
 import time
 from pathlib import Path
 
-import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from experiments.config import register_configs
-from experiments.store import RUNS_FILE
+from experiments.store import load_runs
 from experiments.sweep.compose import Composer, variant_jobs
 from experiments.sweep.sweeper import group_combination_jobs, validation_jobs
 from experiments.sweep.workers import STARTED_DIR, shut_down_workers, worker_death
@@ -232,7 +231,7 @@ def test_a_worker_killed_mid_job_costs_no_setting(tmp_path: Path) -> None:
     assert "Traceback" not in err, err[-3000:]
     assert "worker process died (SIGKILL(-9)): killed by a signal" in out  # the reason, logged
     assert "re-running its jobs [0" in out
-    runs = pd.read_parquet(sweep / RUNS_FILE)
+    runs = load_runs(sweep)
     assert len(runs) == 4 and (runs["status"] == "ok").all(), runs[["status", "message"]]
     _, alive = psutil.wait_procs(list(seen), timeout=10)
     assert not alive, f"processes left behind: {alive}"

@@ -55,7 +55,7 @@ def run_module(module: str, args: list[str], root: Path, timeout: float = 600):
 def make_sweep(root: Path, args: list[str], name: str) -> Path:
     """A sweep through the real command line (reused when this session already made it)."""
     sweep = root / "sweeps" / name
-    if not (sweep / store.RUNS_FILE).is_file():
+    if not any((sweep / store.RUNS_DIR).glob("*.json")):
         done = run_module("experiments.run", args, root)
         assert done.returncode == 0, done.stderr[-3000:]
     return sweep
@@ -145,7 +145,7 @@ def test_fp5_pictures_are_bounded_and_linked(fp5_report: Path) -> None:
 
 @pytest.mark.slow
 def test_markdown_starts_with_provenance(fp5_report: Path, fp5_sweep) -> None:
-    runs = pd.read_parquet(fp5_sweep[1] / store.RUNS_FILE)
+    runs = store.load_runs(fp5_sweep[1])
     for name in ("fp5_lidar.md", "fp6_camera.md", "reference.md"):
         text = (fp5_report / name).read_text()
         assert text.startswith("# ")

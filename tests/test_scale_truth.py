@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from experiments import store
 from experiments.data.scale_truth import materialise
 from experiments.tools.schema import FRAME_COLUMNS
 from tests.conftest import PROJECT_ROOT
@@ -220,7 +221,7 @@ def test_small_sweep_outputs_carry_the_truth(tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
     assert "reports (truth.md, FP.6 against the truth" in done.stdout
     sweep = tmp_path / "st"
-    frames = pd.read_parquet(sweep / "frames.parquet")
+    frames = store.load_sweep(sweep)[0]
     documented = {name for name, *_ in FRAME_COLUMNS}  # the truth's are the only extra columns
     assert set(frames.columns) - documented == set(TRUTH_COLUMNS)
     assert frames.groupby("run_id")["frame"].nunique().eq(4).all()  # 1 source x 4 targets

@@ -52,8 +52,8 @@ def sweep(
 
 def test_sweep_merges_into_one_dataset(sweep) -> None:
     sweep_dir, first, _ = sweep
-    frames = pd.read_parquet(sweep_dir / store.FRAMES_FILE)
-    runs = pd.read_parquet(sweep_dir / store.RUNS_FILE)
+    frames = store.load_sweep(sweep_dir)[0]
+    runs = store.load_runs(sweep_dir)
     assert len(runs) == 8
     assert runs["run_id"].is_unique
     assert runs["status"].value_counts().to_dict() == {"ok": 6, "skipped": 2}
@@ -72,10 +72,10 @@ def test_sweep_merges_into_one_dataset(sweep) -> None:
 def test_sweep_columns_and_types(sweep) -> None:
     from tests.test_pipeline import check_frame_columns
 
-    frames = pd.read_parquet(sweep[0] / store.FRAMES_FILE)
+    frames = store.load_sweep(sweep[0])[0]
     check_frame_columns(frames)
     assert frames["git_commit"].notna().all()
-    runs = pd.read_parquet(sweep[0] / store.RUNS_FILE)
+    runs = store.load_runs(sweep[0])
     for column in ("config", "git_commit", "git_dirty", "version_opencv", "version_numpy",
                    "version_python", "start", "end", "wall_s", "peak_rss_mb"):  # fmt: skip
         assert column in runs, column
@@ -83,7 +83,7 @@ def test_sweep_columns_and_types(sweep) -> None:
 
 def test_second_run_computes_nothing(sweep) -> None:
     sweep_dir, first, second = sweep
-    runs = pd.read_parquet(sweep_dir / store.RUNS_FILE)
+    runs = store.load_runs(sweep_dir)
     assert "this invocation: 0 computed, 8 already complete" in second.stdout
     assert "settings: 8 total, 6 ok, 2 skipped" in second.stdout
     assert (runs.loc[runs["status"] == "ok", "stages_computed"] > 0).all()  # first run computed
@@ -160,8 +160,8 @@ def test_kill_and_resume(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr[-3000:]
     resumed = re.search(r"this invocation: (\d+) computed, (\d+) already complete", res.stdout)
     assert resumed and int(resumed[2]) >= done_before and int(resumed[1]) == 6 - int(resumed[2])
-    runs = pd.read_parquet(tmp_path / "sweeps" / "killed" / store.RUNS_FILE)
-    frames = pd.read_parquet(tmp_path / "sweeps" / "killed" / store.FRAMES_FILE)
+    runs = store.load_runs(tmp_path / "sweeps" / "killed")
+    frames = store.load_sweep(tmp_path / "sweeps" / "killed")[0]
     assert len(runs) == 6 and runs["run_id"].is_unique
     assert (runs["status"] == "ok").all()
     lead = frames[frames["is_lead"]]
@@ -182,8 +182,8 @@ def test_submitit_local_launcher(tmp_path: Path) -> None:
                      "sweep_name=sub"], tmp_path)  # fmt: skip
     assert res.returncode == 0, res.stderr[-3000:]
     assert "4 to compute in 2 jobs (2 batches)" in res.stdout
-    runs = pd.read_parquet(tmp_path / "sweeps" / "sub" / store.RUNS_FILE)
+    runs = store.load_runs(tmp_path / "sweeps" / "sub")
     assert sorted(runs["descriptor"]) == ["brief", "brief", "orb", "orb"]
     assert (runs["status"] == "ok").all() and runs["batch_id"].nunique() == 2
-    frames = pd.read_parquet(tmp_path / "sweeps" / "sub" / store.FRAMES_FILE)
+    frames = store.load_sweep(tmp_path / "sweeps" / "sub")[0]
     assert frames.loc[frames["is_lead"]].groupby("run_id").size().eq(2).all()

@@ -9,7 +9,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pandas as pd
 import pytest
 
 from experiments import store
@@ -43,7 +42,7 @@ def test_one_parent_run_per_sweep_and_one_child_per_setting(tracked) -> None:
     assert len(parents) == 1 and parents[0].info.run_name == "tr"
     assert parents[0].data.metrics["settings_ok"] == 2.0
     assert {c.data.tags["mlflow.parentRunId"] for c in children} == {parents[0].info.run_id}
-    runs = pd.read_parquet(sweep_dir / store.RUNS_FILE).set_index("run_id")
+    runs = store.load_runs(sweep_dir).set_index("run_id")
     assert {c.data.tags["ttc.run_id"] for c in children} == set(runs.index)
     assert parents[0].info.run_id in done.stdout
 

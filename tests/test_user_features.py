@@ -11,7 +11,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pandas as pd
 import pytest
 
 from experiments import store
@@ -115,9 +114,9 @@ def test_sweep_with_a_detector_defined_in_this_file(tmp_path: Path) -> None:
                           env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     sweep = tmp_path / "sweeps" / "mine"
-    runs = pd.read_parquet(sweep / store.RUNS_FILE)
+    runs = store.load_runs(sweep)
     assert (runs["status"] == "ok").all() and len(runs) == 2
     assert set(runs["detector"]) == {"custom"} and TARGET in runs["config"].iloc[0]
-    lead = pd.read_parquet(sweep / store.FRAMES_FILE).query("is_lead")
+    lead = store.load_sweep(sweep)[0].query("is_lead")
     assert len(lead) == 2 * 3 and (lead["keypoints_curr"] > 100).all()
     assert (lead["matches_in_box"] > 10).all() and np.isfinite(lead["ttc_camera"]).any()

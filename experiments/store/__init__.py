@@ -1,27 +1,41 @@
-"""Results store: one folder per sweep, one record + parquet file per run, merged datasets.
+"""Results store: one folder per sweep, append-only: rows fragments and run records.
 
 Layout of a sweep folder::
 
-    <sweep>/runs/<run_id>.parquet     frame-pair rows of one run (written first)
-    <sweep>/runs/<batch>-<sha>.parquet  rows of the runs of one batch (written first)
-    <sweep>/runs/<run_id>.json        the run record (written last: marks the run complete);
-                                      ``rows_file`` names its batch's rows file, if any
-    <sweep>/runs/<id>.lock            held (flock) while a process computes the run / batch
-    <sweep>/.plan/<batch>.json        the settings of a batch (written by the sweeper)
-    <sweep>/frames.parquet            every run's rows, merged (collect), one row group per
-                                      detector × descriptor (× rows file), sorted by axes
-    <sweep>/runs.parquet              every run record, merged (collect)
+    <sweep>/runs/<run_id>.parquet       rows of a run computed alone (a fragment)
+    <sweep>/runs/<batch>-<sha>.parquet  rows of the ok runs of one batch (a fragment)
+    <sweep>/runs/compact-<sha>.parquet  rows of fragments merged by ``ttc-bench compact``
+    <sweep>/runs/<run_id>.json          the run record (written after its rows: marks the run
+                                        complete); ``rows_file`` names its fragment, if not its
+                                        own, ``rows_sha256`` and ``n_rows`` check it
+    <sweep>/runs/<id>.lock              held (flock) while a process computes the run / batch
+    <sweep>/runs/.store.lock            held shared while a process stores runs, exclusive
+                                        while a compaction repoints records
+    <sweep>/.plan/<batch>.json          the settings of a batch (written by the sweeper)
 
-Every file is written to a temporary name in the same folder and renamed into place, so a
-killed sweep leaves whole files or none. Only these names are read; Hydra's job folders and
-logs beside them are ignored.
+An invocation only adds files: each job writes its fragment and its records (each file to a
+temporary name in the same folder, renamed into place, so a killed job leaves whole files or
+none); nothing is merged at the end of a sweep and nothing already there is rewritten, so the
+end of an invocation costs what its own runs cost, and invocations on many nodes (Slurm array
+tasks, ``submitit``, two commands at once) write into one folder without a central step. Only
+these names are read; Hydra's job folders and logs beside them are ignored.
+
+Readers see the folder as one dataset: :func:`load_sweep` (pandas, ``columns=`` to read only
+some), :func:`read_table` (Arrow) and :func:`rows_dataset` (a ``pyarrow.dataset`` to query
+lazily) read the fragments the ``ok`` records name, each checked against its records' SHA-256
+and row counts (:class:`StoreError` names a missing or corrupt one; it is never read as good),
+without the rows of runs recomputed since into another fragment. DuckDB or pyarrow users may
+read the glob ``<sweep>/runs/*.parquet`` (``union_by_name=true``: batches may lack a column):
+it holds exactly the live rows once ``ttc-bench compact`` (:func:`compact`) has run, or when no
+run was recomputed (``force=true``, changed input) or killed between its rows and its records,
+and while no compaction runs (it writes a merged file before it removes the old ones).
 
 A run is *complete* when its record says ``ok`` or ``skipped``, its rows file has the
 SHA-256 and row count the record names, and the input files it read still have the identity
-(size, mtime) the record names (:func:`incomplete_reason`). The merged files carry a digest of
-the records they were merged from, so a reader can tell a stale merge (:func:`load_sweep`).
+(size, mtime) the record names (:func:`incomplete_reason`).
 """
 
+from experiments.store.compact import compact
 from experiments.store.completeness import (
     Checks,
     changed_inputs,
@@ -31,15 +45,21 @@ from experiments.store.completeness import (
     record_problem,
     run_lock,
 )
+from experiments.store.dataset import (
+    fragments,
+    load_runs,
+    load_sweep,
+    read_table,
+    row_count,
+    rows_dataset,
+    runs_table,
+)
 from experiments.store.files import (
     COMPLETE_STATUSES,
-    DIGEST_KEY,
-    FRAMES_FILE,
+    LEGACY_MERGED_FILES,
     NO_RECORD,
     RUNS_DIR,
-    RUNS_FILE,
     StoreError,
-    list_records,
     parquet_bytes,
     read_record,
     read_rows,
@@ -47,27 +67,24 @@ from experiments.store.files import (
     run_paths,
     save_batch,
     save_run,
+    store_lock,
     write_json_atomic,
     write_parquet_atomic,
 )
-from experiments.store.merge import (
-    PARTITION_COLUMNS,
-    ROW_GROUP_ROWS,
-    collect,
-    load_sweep,
-    merge,
-    merge_digest,
-    merge_is_current,
-    merged_row_count,
-)
+from experiments.store.record_index import list_records
+
+#: The glob of a sweep's rows fragments, relative to the sweep folder (module docstring).
+ROWS_GLOB = f"{RUNS_DIR}/*.parquet"
+#: The glob of a sweep's run records, relative to the sweep folder.
+RECORDS_GLOB = f"{RUNS_DIR}/*.json"
 
 __all__ = [
     "RUNS_DIR",
-    "FRAMES_FILE",
-    "RUNS_FILE",
+    "ROWS_GLOB",
+    "RECORDS_GLOB",
+    "LEGACY_MERGED_FILES",
     "COMPLETE_STATUSES",
     "NO_RECORD",
-    "DIGEST_KEY",
     "StoreError",
     "parquet_bytes",
     "write_parquet_atomic",
@@ -78,6 +95,7 @@ __all__ = [
     "read_rows",
     "save_run",
     "save_batch",
+    "store_lock",
     "list_records",
     "input_identities",
     "changed_inputs",
@@ -86,12 +104,12 @@ __all__ = [
     "record_problem",
     "is_complete",
     "run_lock",
-    "merge_digest",
-    "PARTITION_COLUMNS",
-    "ROW_GROUP_ROWS",
-    "collect",
-    "merge",
-    "merged_row_count",
-    "merge_is_current",
+    "fragments",
+    "read_table",
+    "rows_dataset",
     "load_sweep",
+    "load_runs",
+    "runs_table",
+    "row_count",
+    "compact",
 ]

@@ -7,6 +7,8 @@ import contextlib
 import hashlib
 import io
 import json
+import os
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,14 +18,20 @@ import pyarrow.parquet as pq
 
 from ttc.atomic import atomic_write, write_bytes_atomic
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process locking
+    fcntl = None
+
 RUNS_DIR = "runs"
-FRAMES_FILE = "frames.parquet"
-RUNS_FILE = "runs.parquet"
+#: The merged files earlier versions wrote beside ``runs/`` (stale now: nothing reads them;
+#: ``ttc-bench compact`` removes them).
+LEGACY_MERGED_FILES = ("frames.parquet", "runs.parquet")
+#: Held shared while a process stores runs, exclusive while a compaction repoints records.
+STORE_LOCK = ".store.lock"
 COMPLETE_STATUSES = ("ok", "skipped")
 #: :func:`incomplete_reason` of a run never computed in this sweep folder.
 NO_RECORD = "no record"
-#: Parquet schema-metadata key of the merged files: the digest of the records merged.
-DIGEST_KEY = b"ttc_merge_digest"
 
 
 class StoreError(RuntimeError):
@@ -112,13 +120,31 @@ def read_checked_table(path: Path, sha256: str | None) -> pa.Table:
         raise StoreError(path, f"rows file corrupt ({type(exc).__name__}: {exc})") from None
 
 
+@contextlib.contextmanager
+def store_lock(sweep_dir: Path, exclusive: bool = False) -> Iterator[None]:
+    """Hold ``runs/.store.lock`` (``flock``): shared while a process writes rows files and
+    records (many at once), exclusive while a compaction checks and repoints records and
+    removes the files no record names any more (no writer between its check and its
+    change)."""
+    lock_path = Path(sweep_dir) / RUNS_DIR / STORE_LOCK
+    lock_path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def save_run(sweep_dir: Path, record: dict[str, Any], rows: pd.DataFrame | None) -> None:
     """Store a run: rows first (their SHA-256 goes into the record), then the record that
     marks it complete."""
     own_rows, record_path = run_paths(sweep_dir, record["run_id"])
-    if rows is not None:
-        record["rows_sha256"] = write_parquet_atomic(rows, own_rows)
-    write_json_atomic(record, record_path)
+    with store_lock(sweep_dir):
+        if rows is not None:
+            record["rows_sha256"] = write_parquet_atomic(rows, own_rows)
+        write_json_atomic(record, record_path)
 
 
 def save_batch(
@@ -128,23 +154,16 @@ def save_batch(
     ``<batch_id>-<first 12 hex digits of its SHA-256>.parquet`` (a later re-run of some of the
     batch's runs writes a new file and never touches the one other records point to), then
     each run's record with ``rows_file``, ``rows_sha256`` and ``n_rows``. Rows are stored in
-    run id order (a stable sort: each run's rows keep theirs), the merged file's order."""
-    if len(rows):
+    run id order (a stable sort: each run's rows keep theirs)."""
+    if len(rows):  # encoded before the lock is taken
         data = parquet_bytes(rows.sort_values("run_id", kind="stable", ignore_index=True))
         sha = hashlib.sha256(data).hexdigest()
         name = f"{batch_id}-{sha[:12]}.parquet"
-        write_bytes_atomic(data, Path(sweep_dir) / RUNS_DIR / name)
+    with store_lock(sweep_dir):
+        if len(rows):
+            write_bytes_atomic(data, Path(sweep_dir) / RUNS_DIR / name)
+            for record in records:
+                if record.get("status") == "ok":
+                    record.update(rows_file=name, rows_sha256=sha)
         for record in records:
-            if record.get("status") == "ok":
-                record.update(rows_file=name, rows_sha256=sha)
-    for record in records:
-        write_json_atomic(record, run_paths(sweep_dir, record["run_id"])[1], indent=None)
-
-
-def list_records(sweep_dir: Path) -> list[dict[str, Any]]:
-    """Every readable run record of a sweep, sorted by run id."""
-    records = []
-    for path in sorted((Path(sweep_dir) / RUNS_DIR).glob("*.json"), key=lambda p: p.name):
-        with contextlib.suppress(ValueError, OSError):
-            records.append(json.loads(path.read_text()))
-    return records
+            write_json_atomic(record, run_paths(sweep_dir, record["run_id"])[1], indent=None)

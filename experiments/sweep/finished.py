@@ -8,8 +8,8 @@ planned, under :func:`command_key` (the command line, the working folder, the ``
 Python and the packages) in ``<results>/.commands/<key>.json``: the sweep folder and the run
 ids. :func:`report_if_finished`, called first by ``python -m experiments.run``, prints the
 sweep's summary and returns True only when that memo exists, every one of its runs is complete
-(:func:`experiments.store.incomplete_reason`: record, rows checksum, input files) and the
-merged files are current; anything else (never planned, a run failed or is missing, an input
+(:func:`experiments.store.incomplete_reason`: record, rows checksum, input files); anything
+else (never planned, a run failed or is missing, an input
 or a code file changed, ``force=true``, an option such as ``--config-dir`` whose files the key
 does not cover) falls through to the normal path, which decides as before.
 """
@@ -110,13 +110,14 @@ def count_lines(statuses: Sequence[str], outcomes: Sequence[str] | None) -> list
 def summary_head(
     sweep_dir: Path, rows: int, statuses: Sequence[str], outcomes: Sequence[str] | None
 ) -> list[str]:
-    """The sweep summary's first lines: where the merged dataset (``rows`` rows) and the run
+    """The sweep summary's first lines: where the dataset (``rows`` rows) and the run
     records are, then :func:`count_lines`."""
     from experiments import store  # noqa: PLC0415 (pandas: imported once a sweep exists)
 
     return [
-        f"\nsweep dataset: {Path(sweep_dir) / store.FRAMES_FILE} ({rows} rows)",
-        f"run records:   {Path(sweep_dir) / store.RUNS_FILE}",
+        f"\nsweep dataset: {Path(sweep_dir) / store.ROWS_GLOB} ({rows} rows; "
+        "experiments.store.load_sweep reads it)",
+        f"run records:   {Path(sweep_dir) / store.RECORDS_GLOB}",
         *count_lines(statuses, outcomes),
     ]
 
@@ -127,8 +128,8 @@ def nothing_computed_line(sweep_dir: Path) -> str:
 
 
 def report_if_finished(argv: Sequence[str]) -> bool:
-    """Print the summary of command ``argv`` and return True when its sweep is finished and
-    its merge current (module docstring); False (nothing printed) otherwise."""
+    """Print the summary of command ``argv`` and return True when its sweep is finished
+    (module docstring); False (nothing printed) otherwise."""
     global COMMAND_KEY
     COMMAND_KEY = command_key(argv)
     if COMMAND_KEY is None:
@@ -146,10 +147,8 @@ def report_if_finished(argv: Sequence[str]) -> bool:
         if record is None or store.record_problem(sweep_dir, record, checks) is not None:
             return False
     records = store.list_records(sweep_dir)
-    if not store.merge_is_current(sweep_dir, records):
-        return False
     statuses = [str(r.get("status")) for r in records]
-    rows = store.merged_row_count(sweep_dir)
+    rows = store.row_count(records)
     print(
         plan_line(len(run_ids), len(run_ids), 0, 0, 0, 0),
         "(the command was planned before and nothing it depends on has changed: no config "

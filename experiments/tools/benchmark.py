@@ -133,7 +133,7 @@ def timed_sweep(
     if proc.returncode != 0:
         raise RuntimeError(f"sweep {args} failed:\n{err[-4000:]}")
     name = next(a.split("=", 1)[1] for a in args if a.startswith("sweep_name="))
-    runs = pd.read_parquet(results / name / store.RUNS_FILE)
+    runs = store.load_runs(results / name)
     runs.attrs.update(started=started, ended=started + wall)  # epoch seconds
     return wall, runs
 
@@ -262,9 +262,7 @@ def grand_figures(workdir: Path, cores: int) -> dict[str, Any]:
     warm, warm_runs = timed_sweep([*GRAND_WARM, "sweep_name=grand_warm"], results, cache, memory)
     report.update(grand_warm_s=warm, grand_warm_settings=len(warm_runs))
     report["grand_report_s"] = timed_report(results / "grand", workdir / "grand-report", cache)
-    report["grand_frames_rows"] = int(
-        pd.read_parquet(results / "grand" / store.FRAMES_FILE, columns=["run_id"]).shape[0]
-    )
+    report["grand_frames_rows"] = store.row_count(store.list_records(results / "grand"))
     return report
 
 

@@ -1,4 +1,5 @@
-"""The documented schema of a sweep's ``frames.parquet`` (one row per run × frame pair × box pair).
+"""The documented schema of a sweep's rows (``runs/*.parquet``, :func:`experiments.store.load_sweep`:
+one row per run × frame pair × box pair).
 
 The schema table of docs/results.md is generated from :data:`FRAME_COLUMNS`
 (``python -m experiments.tools.schema``) and the tests check real sweeps against it.
@@ -12,7 +13,7 @@ from ttc.settings import AXIS_TABLE
 
 # (column, pandas dtype kind, unit, meaning); kinds: "str", "int", "float", "bool"
 FRAME_COLUMNS: list[tuple[str, str, str, str]] = [
-    ("run_id", "str", "", "hash of the run's setting config; joins runs.parquet"),
+    ("run_id", "str", "", "hash of the run's setting config; joins the run records"),
     ("sweep_id", "str", "", "sweep folder name"),
     *((axis.name, "str", "", axis.doc) for axis in AXIS_TABLE),
     ("git_commit", "str", "", "code version of the run"),

@@ -1,0 +1,106 @@
+"""Every run record of a sweep, listed without reading 28,000 JSON files each time.
+
+The records' JSON files (``runs/<run_id>.json``) stay the authority. A listing keeps the
+records it had to read from their files, each with its file's identity (inode, size, mtime
+in ns: a record is only ever replaced by a rename, which makes a new inode), in a new index
+file ``<sweep>/.records/index-<sha>.pkl`` (written atomically, never rewritten); the next
+listing stats every record file (one ``scandir``) and reads only those whose identity no
+index holds. ``ttc-bench compact`` folds the index files into one. An unreadable index file
+is ignored (its records are read from their files); deleting ``.records/`` is always safe.
+Measured on a synthetic sweep of 28,000 records (2 cores, loaded by other work): reading and
+parsing every JSON file 4.1-9.8 s; from the index 1.9 s. (A sweep folder is the user's own
+data: its pickles, like ``.plan/``'s, are trusted.)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import pickle
+from pathlib import Path
+from typing import Any
+
+from experiments.store.files import RUNS_DIR
+from ttc.atomic import write_bytes_atomic
+
+#: Folder of the index files, under the sweep folder.
+INDEX_DIR = ".records"
+#: A listing writes an index file when it read at least this many records from their files.
+WRITE_AT_LEAST = 64
+
+Identity = tuple[int, int, int]
+
+
+def _load_index(sweep_dir: Path) -> dict[str, dict[Identity, dict[str, Any]]]:
+    """``{file name: {identity: record}}`` of every readable index file."""
+    known: dict[str, dict[Identity, dict[str, Any]]] = {}
+    for path in sorted((Path(sweep_dir) / INDEX_DIR).glob("index-*.pkl")):
+        try:
+            entries = pickle.loads(path.read_bytes())
+        except Exception:  # noqa: BLE001 - damaged or vanished (compacted): read the files
+            continue
+        for name, (identity, record) in entries.items():
+            known.setdefault(name, {})[tuple(identity)] = record
+    return known
+
+
+def write_index(sweep_dir: Path, entries: dict[str, tuple[Identity, dict[str, Any]]]) -> Path:
+    """Write ``{file name: (identity, record)}`` as a new index file; its path."""
+    data = pickle.dumps(entries, protocol=pickle.HIGHEST_PROTOCOL)
+    name = f"index-{hashlib.sha256(data).hexdigest()[:16]}.pkl"
+    return write_bytes_atomic(data, Path(sweep_dir) / INDEX_DIR / name)
+
+
+def list_with_identities(sweep_dir: Path) -> dict[str, tuple[Identity, dict[str, Any]]]:
+    """``{file name: (identity, record)}`` of every readable record, by file name; writes an
+    index file of those read from their files when they are :data:`WRITE_AT_LEAST` or more
+    (nothing when the folder is read-only)."""
+    runs_dir = Path(sweep_dir) / RUNS_DIR
+    try:
+        with os.scandir(runs_dir) as scan:
+            entries = sorted((e for e in scan if e.name.endswith(".json")), key=lambda e: e.name)
+    except FileNotFoundError:
+        return {}
+    known = _load_index(sweep_dir) if entries else {}
+    out: dict[str, tuple[Identity, dict[str, Any]]] = {}
+    fresh: dict[str, tuple[Identity, dict[str, Any]]] = {}
+    for entry in entries:
+        try:
+            stat = entry.stat()
+        except OSError:
+            continue
+        identity = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
+        record = known.get(entry.name, {}).get(identity)
+        if record is None:
+            try:
+                record = json.loads(Path(entry.path).read_text())
+            except (OSError, ValueError):
+                continue
+            fresh[entry.name] = (identity, record)
+        out[entry.name] = (identity, record)
+    if len(fresh) >= WRITE_AT_LEAST:
+        with contextlib.suppress(OSError):
+            write_index(sweep_dir, fresh)
+    return out
+
+
+def list_records(sweep_dir: Path) -> list[dict[str, Any]]:
+    """Every readable run record of a sweep, sorted by run id (its file name)."""
+    return [record for _, record in list_with_identities(sweep_dir).values()]
+
+
+def fold_index(sweep_dir: Path) -> int:
+    """Replace the index files by one of every record listed now; how many files removed."""
+    old = list((Path(sweep_dir) / INDEX_DIR).glob("index-*.pkl"))
+    entries = list_with_identities(sweep_dir)
+    if not entries:
+        return 0
+    new = write_index(sweep_dir, entries)
+    removed = 0
+    for path in old:
+        if path != new:
+            path.unlink(missing_ok=True)
+            removed += 1
+    return removed
