@@ -32,8 +32,11 @@ def split_by_recording(data: SweepData) -> dict[str, SweepData]:
         frames = data.frames
         if not frames.empty:
             frames = frames[frames["run_id"].isin(ids)].reset_index(drop=True)
+        boxes = data.boxes
+        if not boxes.empty:
+            boxes = boxes[boxes["run_id"].isin(ids)].reset_index(drop=True)
         parts[recording_id(sequence)] = SweepData(
-            data.dirs, frames, runs, data.overrides, data.repeated
+            data.dirs, frames, runs, data.overrides, data.repeated, boxes
         )
     return parts
 

@@ -23,7 +23,7 @@ from experiments.config import (
 from experiments.data.first_run import ensure_model_files
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
-from ttc import evaluation as ev
+from experiments.report import rows
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.model_files import uses_bundled_files
@@ -33,19 +33,25 @@ from ttc.settings import FrameRange, Settings
 
 @dataclass
 class SweepData:
-    """Rows and run records of one or more sweeps (run ids unique across them)."""
+    """Rows and run records of one or more sweeps (run ids unique across them). ``frames``:
+    the rows a report judges, each frame pair's lead row (else its first row) of every run,
+    every column, with ``ms_compute_per_frame`` (:mod:`experiments.report.rows`); ``boxes``:
+    the matched box pairs of one run per camera setting and recording (the "every object"
+    report), on :data:`~experiments.report.rows.BOX_COLUMNS`."""
 
     dirs: list[Path]
     frames: pd.DataFrame
     runs: pd.DataFrame
     overrides: dict[str, list[str]] = field(default_factory=dict)
     repeated: int = 0  # runs of a later sweep already present in an earlier one (dropped)
+    boxes: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 def read_sweep(sweep_dir: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """``frames`` and ``runs`` of a sweep, checked against its ``runs/`` folder and merged
-    again when missing or stale (:func:`experiments.store.load_sweep`; its
-    :class:`~experiments.store.StoreError` names a corrupt file)."""
+    """``frames`` (every row, every column) and ``runs`` of a sweep, checked against its
+    ``runs/`` folder and merged again when missing or stale (:func:`experiments.store.load_sweep`;
+    its :class:`~experiments.store.StoreError` names a corrupt file). A report reads less
+    (:func:`load_sweeps`)."""
     return store.load_sweep(Path(sweep_dir))
 
 
@@ -61,32 +67,42 @@ def sweep_overrides(sweep_dir: Path) -> list[str]:
     return task + [f"{k}={v} (sweep)" for k, v in params.items()]
 
 
+def _concat(parts: list[pd.DataFrame]) -> pd.DataFrame:
+    """``parts`` one under the other (a new index), or an empty frame."""
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
 def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
-    frames get ``ms_compute_per_frame`` looked up over all of them
-    (:func:`ttc.evaluation.with_compute_times`)."""
+    judged rows get ``ms_compute_per_frame`` looked up over every row of all of them
+    (:func:`ttc.evaluation.with_compute_times`). Bounded memory: the rows are read a few
+    columns at a time and cut at once (:func:`experiments.report.rows.read_rows`)."""
     dirs = [Path(d) for d in dirs]
-    frame_parts, run_parts, overrides = [], [], {}
+    lead_parts, box_parts, time_parts, run_parts, overrides = [], [], [], [], {}
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
-        frames, runs = read_sweep(d)
+        keys, runs = store.load_sweep(d, list(rows.KEY_COLUMNS))
         if runs.empty:
             continue
         known = runs["run_id"].isin(seen)
         repeated += int(known.sum())
         runs = runs[~known].assign(sweep_dir=str(d.resolve()))
-        if not frames.empty:
-            frame_parts.append(frames[frames["run_id"].isin(runs["run_id"])])
+        if not keys.empty:
+            lead, boxes, times = rows.read_rows(d, runs, keys)
+            lead_parts.append(lead)
+            box_parts.append(boxes)
+            time_parts.append(times)
+        del keys
         run_parts.append(runs)
         seen |= set(runs["run_id"])
         overrides[d.name] = sweep_overrides(d)
-    frames = pd.concat(frame_parts, ignore_index=True) if frame_parts else pd.DataFrame()
-    runs = pd.concat(run_parts, ignore_index=True) if run_parts else pd.DataFrame()
+    frames, boxes, runs = _concat(lead_parts), _concat(box_parts), _concat(run_parts)
     frames, runs = with_neutral_axes(frames), with_neutral_axes(runs)  # axes added since
     if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
-        frames = ev.with_compute_times(frames)
-    return SweepData(dirs, frames, runs, overrides, repeated)
+        times = time_parts[0] if len(time_parts) == 1 else _concat(time_parts)
+        frames["ms_compute_per_frame"] = rows.compute_times(times).to_numpy()
+    return SweepData(dirs, frames, runs, overrides, repeated, boxes)
 
 
 def run_config(config_json: str, root: Path) -> DictConfig:

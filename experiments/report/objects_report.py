@@ -11,13 +11,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiments.recordings import setting_of
 from experiments.reference_store import object_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData, setting_of_run
 from experiments.report.plots import plot_breakdown, plot_objects, save_figure
-from ttc import evaluation as ev
+from experiments.report.rows import camera_runs
 from ttc.evaluation.object_errors import (
     breakdown,
     judge_objects,
@@ -28,7 +27,6 @@ from ttc.evaluation.object_errors import (
 )
 from ttc.evaluation.object_reference import REFERENCE_OBJECT_COLUMNS
 from ttc.evaluation.ttc_bins import OBJECT_TTC_BINS
-from ttc.settings import AXES, only_sensor_axes
 
 #: Settings shown in each best-of table.
 BEST = 5
@@ -40,17 +38,6 @@ def reference_objects_table(reference: pd.DataFrame) -> pd.DataFrame:
     return reference[list(REFERENCE_OBJECT_COLUMNS)].sort_values(["frame", "track_id"])
 
 
-def camera_runs(runs: pd.DataFrame) -> pd.Series:
-    """One ok run per camera setting (settings that differ only in a lidar or fused option
-    give the same camera TTC: counted once, as in the cross-recording ranking), labelled by
-    the axes that vary among them; a Series of labels by run id."""
-    ok = runs[runs["status"] == "ok"]
-    ok = ok[~setting_of(ok, "camera").duplicated().to_numpy()]
-    other = {*only_sensor_axes("lidar"), *only_sensor_axes("fused"), "dataset"}
-    labels = ev.setting_labels(ok, [a for a in AXES if a not in other])
-    return pd.Series(labels.to_numpy(), index=ok["run_id"].to_numpy())
-
-
 def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.DataFrame:
     """Write ``reference_objects.csv``, ``objects.csv``, ``objects_ranking.csv``,
     ``objects.md``, ``objects.png`` and ``objects_breakdown.png`` of the runs of ``data`` (one recording) judged against
@@ -59,7 +46,7 @@ def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.Da
     out.mkdir(parents=True, exist_ok=True)
     write_csv(reference_objects_table(reference), out / "reference_objects.csv")
     labels = camera_runs(data.runs)
-    judged = judge_objects(data.frames[data.frames["run_id"].isin(labels.index)], reference)
+    judged = judge_objects(data.boxes[data.boxes["run_id"].isin(labels.index)], reference)
     judged["setting"] = judged["run_id"].map(labels)
     write_csv(object_metrics(judged, ["setting", "role", "ttc_bin"]), out / "objects.csv")
     ranking = track_bootstrap_ranks(judged)

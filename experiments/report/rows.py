@@ -1,0 +1,133 @@
+"""A sweep's rows for a report in bounded memory: of the rows (one per run × frame pair × box
+pair) a report judges only each pair's lead row (:func:`ttc.evaluation.lead_rows`) on every
+column, and the matched box pairs of one run per camera setting (the "every object" report)
+on a few. The store is read a few columns at a time (:func:`experiments.store.load_sweep`) and
+each read is cut to those rows at once, so no frame of every row and every column is built
+(``grand`` 0–18: 3.06 M rows, 2.4 GB as one pandas frame; docs/benchmarks.md)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from experiments import store
+from experiments.identity import with_neutral_axes
+from experiments.recordings import run_ids_by_recording, setting_of
+from experiments.tools.schema import FRAME_COLUMNS
+from ttc import evaluation as ev
+from ttc.io.frames import TRUTH_COLUMNS
+from ttc.settings import AXES, CACHED_STAGES, only_sensor_axes
+
+#: Columns that pick the rows: the pair (run, frame), its lead flag and its box pair.
+KEY_COLUMNS: tuple[str, ...] = ("run_id", "frame", "is_lead", "prev_box", "curr_box")
+#: Columns :func:`ttc.evaluation.with_compute_times` reads on every row.
+TIME_COLUMNS: tuple[str, ...] = (
+    "frame",
+    *dict.fromkeys(a for s in CACHED_STAGES for a in s.axes),
+    *(c for c, *_ in FRAME_COLUMNS if c.startswith(("ms_", "cached_"))),
+)
+#: Columns of the matched box pairs the "every object" report judges
+#: (:func:`ttc.evaluation.object_errors.judge_objects`).
+BOX_COLUMNS: tuple[str, ...] = (
+    "run_id", "prev_frame", "frame", "prev_box", "curr_box", "box_w", "box_h", "ttc_lidar",
+    "d_prev", "d_curr", "ttc_camera", "camera_ratio",
+)  # fmt: skip
+#: Columns read per store call after the keys: bounds the transient memory of one read
+#: (≈ 25 MB per numeric column on ``grand`` 0–18, twice while pyarrow converts).
+CHUNK = 16
+
+
+def row_columns() -> list[str]:
+    """Every column a sweep's rows may have, in the order the runner writes them."""
+    return [c for c, *_ in FRAME_COLUMNS] + list(TRUTH_COLUMNS)
+
+
+def judged_mask(keys: pd.DataFrame) -> np.ndarray:
+    """Rows (n,) bool that :func:`ttc.evaluation.lead_rows` can pick: every ``is_lead`` row,
+    and a pair's first row where the pair (``run_id``, ``frame``) has none."""
+    lead = keys["is_lead"].astype(bool).to_numpy()
+    pair = [keys["run_id"], keys["frame"]]
+    has_lead = pd.Series(lead).groupby(pair, sort=False).transform("any").to_numpy()
+    first = ~keys.duplicated(["run_id", "frame"]).to_numpy()
+    return lead | (~has_lead & first)
+
+
+def camera_runs(runs: pd.DataFrame) -> pd.Series:
+    """One ok run per camera setting (settings that differ only in a lidar or fused option
+    give the same camera TTC: counted once, as in the cross-recording ranking), labelled by
+    the axes that vary among them; a Series of labels by run id."""
+    ok = runs[runs["status"] == "ok"]
+    ok = ok[~setting_of(ok, "camera").duplicated().to_numpy()]
+    other = {*only_sensor_axes("lidar"), *only_sensor_axes("fused"), "dataset"}
+    labels = ev.setting_labels(ok, [a for a in AXES if a not in other])
+    return pd.Series(labels.to_numpy(), index=ok["run_id"].to_numpy())
+
+
+def box_runs(runs: pd.DataFrame) -> set[str]:
+    """The runs whose box pairs the "every object" report judges: :func:`camera_runs` of
+    each recording."""
+    if runs.empty:
+        return set()
+    by_recording = run_ids_by_recording(runs).values()
+    return {i for ids in by_recording for i in camera_runs(runs[runs["run_id"].isin(ids)]).index}
+
+
+def _chunks(columns: list[str], size: int) -> Iterable[list[str]]:
+    """``columns`` in lists of at most ``size``."""
+    return (columns[i : i + size] for i in range(0, len(columns), size))
+
+
+def _read(sweep_dir: Path, columns: list[str], n_rows: int) -> pd.DataFrame:
+    """``columns`` of every row of a sweep (those it has), in the store's row order, which
+    must be the order of its other reads: ``n_rows`` rows, else a ValueError."""
+    part = store.load_sweep(sweep_dir, columns)[0]
+    if len(part) != n_rows:
+        raise ValueError(f"{sweep_dir}: {len(part)} rows read, {n_rows} before: changed while read")
+    return part
+
+
+def read_rows(
+    sweep_dir: Path, runs: pd.DataFrame, keys: pd.DataFrame
+) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """(judged rows, box rows, time rows) of the runs ``runs`` of a sweep whose
+    :data:`KEY_COLUMNS` are ``keys`` (all its rows, as the store gives them): judged rows
+    (:func:`judged_mask`) on every column, the matched box pairs of :func:`box_runs` on
+    :data:`BOX_COLUMNS`, every row on :data:`TIME_COLUMNS` with ``judged`` (bool)."""
+    mine = keys["run_id"].isin(runs["run_id"]).to_numpy()
+    judged = judged_mask(keys) & mine
+    boxed = (
+        keys["run_id"].isin(box_runs(runs)).to_numpy()
+        & (keys["prev_box"] >= 0).to_numpy()
+        & (keys["curr_box"] >= 0).to_numpy()
+        & mine
+    )
+    times = _read(sweep_dir, list(TIME_COLUMNS), len(keys))[mine]
+    times = times.assign(judged=judged[mine]).reset_index(drop=True)
+    lead_parts, box_parts = [keys[judged].reset_index(drop=True)], [keys[boxed]]
+    rest = [c for c in row_columns() if c not in KEY_COLUMNS]
+    for chunk in _chunks(rest, CHUNK):
+        part = _read(sweep_dir, chunk, len(keys))
+        lead_parts.append(part[judged].reset_index(drop=True))
+        box_parts.append(part.loc[boxed, [c for c in BOX_COLUMNS if c in part]])
+        del part
+    lead = pd.concat(lead_parts, axis=1)
+    boxes = pd.concat(box_parts, axis=1).reset_index(drop=True)
+    order = [c for c in row_columns() if c in lead]
+    return lead[order], boxes[[c for c in BOX_COLUMNS if c in boxes]], times
+
+
+def compute_times(times: pd.DataFrame) -> pd.Series:
+    """``ms_compute_per_frame`` (ms) of the ``judged`` rows of ``times`` (every row of the
+    sweeps on :data:`TIME_COLUMNS`), looked up over all of them
+    (:func:`ttc.evaluation.with_compute_times`); the axes are grouped by integer codes."""
+    narrow = times.drop(columns="judged")
+    axes = list(dict.fromkeys(a for s in CACHED_STAGES for a in s.axes))
+    filled = with_neutral_axes(narrow[[a for a in axes if a in narrow]])  # axes added since
+    for axis in (a for a in axes if a in filled):
+        codes = pd.Series(pd.factorize(filled[axis])[0])
+        narrow[axis] = codes.where(codes >= 0).to_numpy()  # NaN stays NaN (not grouped)
+    ms = ev.with_compute_times(narrow)["ms_compute_per_frame"]
+    return ms[times["judged"].to_numpy()].reset_index(drop=True)
