@@ -75,25 +75,24 @@ def _concat(parts: list[pd.DataFrame]) -> pd.DataFrame:
 def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
     judged rows get ``ms_compute_per_frame`` looked up over every row of all of them
-    (:func:`ttc.evaluation.with_compute_times`). Bounded memory: the rows are read a few
-    columns at a time and cut at once (:func:`experiments.report.rows.read_rows`)."""
+    (:func:`ttc.evaluation.with_compute_times`). Bounded memory: the rows are read a fragment
+    at a time and cut at once (:func:`experiments.report.rows.read_rows`)."""
     dirs = [Path(d) for d in dirs]
     lead_parts, box_parts, time_parts, run_parts, overrides = [], [], [], [], {}
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
-        keys, runs = store.load_sweep(d, list(rows.KEY_COLUMNS))
+        parts, runs = store.scan_sweep(d)
         if runs.empty:
             continue
         known = runs["run_id"].isin(seen)
         repeated += int(known.sum())
         runs = runs[~known].assign(sweep_dir=str(d.resolve()))
-        if not keys.empty:
-            lead, boxes, times = rows.read_rows(d, runs, keys)
+        lead, boxes, times = rows.read_rows(parts, runs)
+        if not lead.empty:
             lead_parts.append(lead)
             box_parts.append(boxes)
             time_parts.append(times)
-        del keys
         run_parts.append(runs)
         seen |= set(runs["run_id"])
         overrides[d.name] = sweep_overrides(d)

@@ -1,19 +1,17 @@
 """A sweep's rows for a report in bounded memory: of the rows (one per run × frame pair × box
 pair) a report judges only each pair's lead row (:func:`ttc.evaluation.lead_rows`) on every
 column, and the matched box pairs of one run per camera setting (the "every object" report)
-on a few. The store is read a few columns at a time (:func:`experiments.store.load_sweep`) and
-each read is cut to those rows at once, so no frame of every row and every column is built
+on a few. The store is read a fragment at a time (:func:`experiments.store.scan_sweep`) and
+each fragment is cut to those rows at once, so no frame of every row and every column is built
 (``grand`` 0–18: 3.06 M rows, 2.4 GB as one pandas frame; docs/benchmarks.md)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from experiments import store
 from experiments.identity import with_neutral_axes
 from experiments.recordings import run_ids_by_recording, setting_of
 from experiments.tools.schema import FRAME_COLUMNS
@@ -35,9 +33,6 @@ BOX_COLUMNS: tuple[str, ...] = (
     "run_id", "prev_frame", "frame", "prev_box", "curr_box", "box_w", "box_h", "ttc_lidar",
     "d_prev", "d_curr", "ttc_camera", "camera_ratio",
 )  # fmt: skip
-#: Columns read per store call after the keys: bounds the transient memory of one read
-#: (≈ 25 MB per numeric column on ``grand`` 0–18, twice while pyarrow converts).
-CHUNK = 16
 
 
 def row_columns() -> list[str]:
@@ -75,48 +70,37 @@ def box_runs(runs: pd.DataFrame) -> set[str]:
     return {i for ids in by_recording for i in camera_runs(runs[runs["run_id"].isin(ids)]).index}
 
 
-def _chunks(columns: list[str], size: int) -> Iterable[list[str]]:
-    """``columns`` in lists of at most ``size``."""
-    return (columns[i : i + size] for i in range(0, len(columns), size))
-
-
-def _read(sweep_dir: Path, columns: list[str], n_rows: int) -> pd.DataFrame:
-    """``columns`` of every row of a sweep (those it has), in the store's row order, which
-    must be the order of its other reads: ``n_rows`` rows, else a ValueError."""
-    part = store.load_sweep(sweep_dir, columns)[0]
-    if len(part) != n_rows:
-        raise ValueError(f"{sweep_dir}: {len(part)} rows read, {n_rows} before: changed while read")
-    return part
-
-
 def read_rows(
-    sweep_dir: Path, runs: pd.DataFrame, keys: pd.DataFrame
+    parts: Iterable[pd.DataFrame], runs: pd.DataFrame
 ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """(judged rows, box rows, time rows) of the runs ``runs`` of a sweep whose
-    :data:`KEY_COLUMNS` are ``keys`` (all its rows, as the store gives them): judged rows
-    (:func:`judged_mask`) on every column, the matched box pairs of :func:`box_runs` on
-    :data:`BOX_COLUMNS`, every row on :data:`TIME_COLUMNS` with ``judged`` (bool)."""
-    mine = keys["run_id"].isin(runs["run_id"]).to_numpy()
-    judged = judged_mask(keys) & mine
-    boxed = (
-        keys["run_id"].isin(box_runs(runs)).to_numpy()
-        & (keys["prev_box"] >= 0).to_numpy()
-        & (keys["curr_box"] >= 0).to_numpy()
-        & mine
-    )
-    times = _read(sweep_dir, list(TIME_COLUMNS), len(keys))[mine]
-    times = times.assign(judged=judged[mine]).reset_index(drop=True)
-    lead_parts, box_parts = [keys[judged].reset_index(drop=True)], [keys[boxed]]
-    rest = [c for c in row_columns() if c not in KEY_COLUMNS]
-    for chunk in _chunks(rest, CHUNK):
-        part = _read(sweep_dir, chunk, len(keys))
-        lead_parts.append(part[judged].reset_index(drop=True))
+    """(judged rows, box rows, time rows) of the runs ``runs`` of a sweep whose rows come as
+    ``parts`` (:func:`experiments.store.scan_sweep`: a fragment at a time; every row of a run
+    is in one part): judged rows (:func:`judged_mask`) on every column, the matched box pairs
+    of :func:`box_runs` on :data:`BOX_COLUMNS`, every row on :data:`TIME_COLUMNS` with
+    ``judged`` (bool). Memory: what is kept, and one part."""
+    ids, boxed_ids = set(runs["run_id"]), box_runs(runs)
+    lead_parts, box_parts, time_parts = [], [], []
+    for part in parts:
+        mine = part["run_id"].isin(ids).to_numpy()
+        judged = judged_mask(part[list(KEY_COLUMNS)]) & mine
+        boxed = (
+            part["run_id"].isin(boxed_ids).to_numpy()
+            & (part["prev_box"] >= 0).to_numpy()
+            & (part["curr_box"] >= 0).to_numpy()
+            & mine
+        )
+        order = [c for c in row_columns() if c in part]
+        lead_parts.append(part.loc[judged, order])
         box_parts.append(part.loc[boxed, [c for c in BOX_COLUMNS if c in part]])
+        times = part.loc[mine, [c for c in TIME_COLUMNS if c in part]]
+        time_parts.append(times.assign(judged=judged[mine]))
         del part
-    lead = pd.concat(lead_parts, axis=1)
-    boxes = pd.concat(box_parts, axis=1).reset_index(drop=True)
-    order = [c for c in row_columns() if c in lead]
-    return lead[order], boxes[[c for c in BOX_COLUMNS if c in boxes]], times
+    return tuple(_stacked(p) for p in (lead_parts, box_parts, time_parts))  # type: ignore[return-value]
+
+
+def _stacked(parts: list[pd.DataFrame]) -> pd.DataFrame:
+    """``parts`` one under the other with a new index (an empty frame for none)."""
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
 
 def compute_times(times: pd.DataFrame) -> pd.Series:

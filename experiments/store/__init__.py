@@ -53,6 +53,7 @@ from experiments.store.dataset import (
     row_count,
     rows_dataset,
     runs_table,
+    scan_sweep,
 )
 from experiments.store.files import (
     COMPLETE_STATUSES,
@@ -79,6 +80,7 @@ ROWS_GLOB = f"{RUNS_DIR}/*.parquet"
 RECORDS_GLOB = f"{RUNS_DIR}/*.json"
 
 __all__ = [
+    "scan_sweep",
     "RUNS_DIR",
     "ROWS_GLOB",
     "RECORDS_GLOB",

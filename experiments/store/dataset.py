@@ -215,6 +215,27 @@ def row_count(records: list[dict[str, Any]]) -> int:
     return sum(int(r.get("n_rows") or 0) for r in records if r.get("status") == "ok")
 
 
+def scan_sweep(
+    sweep_dir: Path, columns: list[str] | None = None
+) -> tuple[Iterator[pd.DataFrame], pd.DataFrame]:
+    """(each live fragment's checked rows as a frame, one at a time, in :func:`load_sweep`'s
+    order; every run record): :func:`load_sweep` in memory bounded by a fragment, for a
+    reader that keeps only part of each (``columns``: only these, those the sweep has). A
+    fragment that a compaction removes while it is read raises :class:`StoreError` naming it
+    (open the sweep again)."""
+    sweep_dir = Path(sweep_dir)
+    if not (sweep_dir / RUNS_DIR).is_dir():
+        raise StoreError(sweep_dir, f"no {RUNS_DIR}/ folder: not a sweep folder")
+    records = list_records(sweep_dir)
+    frags = fragments(sweep_dir, records)
+    schema = unified_schema(frags)
+    if schema is None:
+        return iter(()), runs_table(records)
+    present = None if columns is None else [c for c in columns if c in schema.names]
+    tables = iter_tables(frags, schema, present)
+    return (table.to_pandas() for table in tables), runs_table(records)
+
+
 def load_sweep(
     sweep_dir: Path, columns: list[str] | None = None
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
