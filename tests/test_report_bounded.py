@@ -1,4 +1,4 @@
-"""The report in bounded memory (issue 32, :mod:`experiments.report.rows`): a real sweep's
+"""The report in bounded memory (issue 32, :mod:`experiments.report.judged_rows`): a real sweep's
 tables written by today's report and by the report at ``a6c2b20`` (which held every row of
 every run in one frame) are byte-identical, the report's own provenance lines aside; and the
 rows a report keeps are the ones :func:`ttc.evaluation.lead_rows` picks."""
@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from experiments.report.rows import judged_mask
+from experiments.report.judged_rows import judged_mask
 from tests.conftest import PROJECT_ROOT, data_root
 from tests.test_report import env_for, make_report, make_sweep, shared_root
 from ttc import evaluation as ev

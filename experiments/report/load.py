@@ -23,7 +23,7 @@ from experiments.config import (
 from experiments.data.first_run import ensure_model_files
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
-from experiments.report import rows
+from experiments.report import judged_rows
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.model_files import uses_bundled_files
@@ -35,9 +35,9 @@ from ttc.settings import FrameRange, Settings
 class SweepData:
     """Rows and run records of one or more sweeps (run ids unique across them). ``frames``:
     the rows a report judges, each frame pair's lead row (else its first row) of every run,
-    every column, with ``ms_compute_per_frame`` (:mod:`experiments.report.rows`); ``boxes``:
+    every column, with ``ms_compute_per_frame`` (:mod:`experiments.report.judged_rows`); ``boxes``:
     the matched box pairs of one run per camera setting and recording (the "every object"
-    report), on :data:`~experiments.report.rows.BOX_COLUMNS`."""
+    report), on :data:`~experiments.report.judged_rows.BOX_COLUMNS`."""
 
     dirs: list[Path]
     frames: pd.DataFrame
@@ -76,7 +76,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
     judged rows get ``ms_compute_per_frame`` looked up over every row of all of them
     (:func:`ttc.evaluation.with_compute_times`). Bounded memory: the rows are read a fragment
-    at a time and cut at once (:func:`experiments.report.rows.read_rows`)."""
+    at a time and cut at once (:func:`experiments.report.judged_rows.read_rows`)."""
     dirs = [Path(d) for d in dirs]
     lead_parts, box_parts, time_parts, run_parts, overrides = [], [], [], [], {}
     seen: set[str] = set()
@@ -88,7 +88,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         known = runs["run_id"].isin(seen)
         repeated += int(known.sum())
         runs = runs[~known].assign(sweep_dir=str(d.resolve()))
-        lead, boxes, times = rows.read_rows(parts, runs)
+        lead, boxes, times = judged_rows.read_rows(parts, runs)
         if not lead.empty:
             lead_parts.append(lead)
             box_parts.append(boxes)
@@ -100,7 +100,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     frames, runs = with_neutral_axes(frames), with_neutral_axes(runs)  # axes added since
     if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
         times = time_parts[0] if len(time_parts) == 1 else _concat(time_parts)
-        frames["ms_compute_per_frame"] = rows.compute_times(times).to_numpy()
+        frames["ms_compute_per_frame"] = judged_rows.compute_times(times).to_numpy()
     return SweepData(dirs, frames, runs, overrides, repeated, boxes)
 
 

@@ -14,9 +14,9 @@ import pandas as pd
 from experiments.reference_store import object_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
+from experiments.report.judged_rows import camera_runs
 from experiments.report.load import Context, SweepData, setting_of_run
 from experiments.report.plots import plot_breakdown, plot_objects, save_figure
-from experiments.report.rows import camera_runs
 from ttc.evaluation.object_errors import (
     breakdown,
     judge_objects,
