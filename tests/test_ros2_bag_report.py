@@ -48,7 +48,7 @@ def test_the_objects_report_of_a_bag_with_two_clouds_uses_the_run_s_lidar_topic(
                         "sweep_name=bag"], tmp)  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
     sweep = tmp / "sweeps" / "bag"
-    runs = pd.read_parquet(sweep / store.RUNS_FILE)
+    rows, runs = store.load_sweep(sweep)
     source = recording_source_of(runs, runs["run_id"].iloc[0], data_root())
     assert source == frame_range_from_config(bag_config(two, *options)).sequence_dir
     assert source.lidar_topic == LIDAR and source.camera_frame == "rectified"
@@ -64,7 +64,6 @@ def test_the_objects_report_of_a_bag_with_two_clouds_uses_the_run_s_lidar_topic(
     # the reference's nearest faces are the run's (same scans, same projection): with the
     # 1000-point cloud or the ROS camera convention they would not be
     ref = pd.read_csv(out / "reference_objects.csv")
-    rows = pd.read_parquet(sweep / store.FRAMES_FILE)
     keys = ["frame", "box_x", "box_y", "box_w", "box_h"]
     both = ref.merge(rows[[*keys, "object_distance_m"]].drop_duplicates(keys), on=keys)
     both = both[both["distance_m"].notna() & both["object_distance_m"].notna()]
