@@ -35,8 +35,10 @@ def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
     breakdown = report["warm_filter_breakdown"]
     assert report["warm_filter_fixed_s"] == breakdown["lead_in_s"] + breakdown["tail_s"] > 0
     assert report["small_settings"] == 8
-    assert report["missing"] == ["grand_cold_s", "grand_warm_s", "grand_peak_rss_mb",
-                                 "grand_peak_pss_mb", "grand_report_s",
+    assert report["missing"] == ["grand_cold_s", "grand_warm_s", "grand_warm_fixed_s",
+                                 "grand_peak_rss_mb", "grand_peak_pss_mb", "grand_report_s",
+                                 "grand_report_peak_rss_mb", "grand_long_cold_s",
+                                 "grand_long_report_s", "grand_long_report_peak_rss_mb",
                                  "long_cold_s"]  # not run when reduced  # fmt: skip
     assert report["rerun_s"] < report["cold_s"]  # nothing to compute
     assert report["settings"] == 16 and report["status"] == {"ok": 16}
