@@ -124,3 +124,28 @@ def start_server(forwarded: Forwarded) -> None:
             env=dict(forwarded.environ), stdin=subprocess.DEVNULL, stdout=log, stderr=log, cwd="/",
             start_new_session=True, close_fds=True,
         )  # fmt: skip
+
+
+def ensure_server() -> Path | None:
+    """Start a server for this interpreter, ``sys.path`` and environment unless one answers
+    (``python -m experiments.warm.client``, e.g. at login); its socket, None when switched
+    off or not private."""
+    if not enabled(os.environ):
+        return None
+    try:
+        key = server_key(os.environ)
+        path = socket_path(runtime_dir(os.environ), key)
+    except OSError:
+        return None
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        try:
+            probe.connect(str(path))
+            return path
+        except OSError:
+            pass
+    start_server(Forwarded(None, path, key, tuple(os.environ.items()), tuple(sys.path)))
+    return path
+
+
+if __name__ == "__main__":
+    print(ensure_server())
