@@ -24,6 +24,7 @@ from experiments.data.first_run import ensure_model_files
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
 from experiments.report import judged_rows
+from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.model_files import uses_bundled_files
@@ -75,10 +76,11 @@ def _concat(parts: list[pd.DataFrame]) -> pd.DataFrame:
 def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
     judged rows get ``ms_compute_per_frame`` looked up over every row of all of them
-    (:func:`ttc.evaluation.with_compute_times`). Bounded memory: the rows are read a fragment
-    at a time and cut at once (:func:`experiments.report.judged_rows.read_rows`)."""
+    (:func:`ttc.evaluation.compute_times`, from the stage times counted). Bounded memory: the
+    rows are read a fragment at a time and cut at once, to the judged rows, the box pairs of a
+    few runs and the counts (:func:`experiments.report.judged_rows.read_rows`)."""
     dirs = [Path(d) for d in dirs]
-    lead_parts, box_parts, time_parts, run_parts, overrides = [], [], [], [], {}
+    lead_parts, box_parts, counts, run_parts, overrides = [], [], [], [], {}
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
@@ -88,19 +90,19 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         known = runs["run_id"].isin(seen)
         repeated += int(known.sum())
         runs = runs[~known].assign(sweep_dir=str(d.resolve()))
-        lead, boxes, times = judged_rows.read_rows(parts, runs)
+        lead, boxes, sweep_counts = judged_rows.read_rows(parts, runs)
         if not lead.empty:
             lead_parts.append(lead)
             box_parts.append(boxes)
-            time_parts.append(times)
+            counts.append(sweep_counts)
         run_parts.append(runs)
         seen |= set(runs["run_id"])
         overrides[d.name] = sweep_overrides(d)
     frames, boxes, runs = _concat(lead_parts), _concat(box_parts), _concat(run_parts)
     frames, runs = with_neutral_axes(frames), with_neutral_axes(runs)  # axes added since
     if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
-        times = time_parts[0] if len(time_parts) == 1 else _concat(time_parts)
-        frames["ms_compute_per_frame"] = judged_rows.compute_times(times).to_numpy()
+        times = judged_rows.compute_times(frames, ev.join_counts(counts))
+        frames["ms_compute_per_frame"] = times.to_numpy()
     return SweepData(dirs, frames, runs, overrides, repeated, boxes)
 
 

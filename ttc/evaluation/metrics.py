@@ -32,9 +32,9 @@ from ttc.evaluation.errors import (
     attach_reference,
     frame_errors,
     sensors_of,
-    stage_time_columns,
 )
 from ttc.evaluation.reference import REGIMES
+from ttc.evaluation.stage_times import stage_time_columns
 from ttc.settings import AXES
 
 
