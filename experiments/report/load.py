@@ -31,6 +31,10 @@ from ttc.features.model_files import uses_bundled_files
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
 
+#: Run record fields no report reads, left out of :attr:`SweepData.runs`: the identities of a
+#: run's input files, which the completeness check compares (3.7 kB of a record's 6.6 kB).
+UNREAD_RECORD_FIELDS: tuple[str, ...] = ("inputs",)
+
 
 @dataclass
 class SweepData:
@@ -38,7 +42,8 @@ class SweepData:
     the rows a report judges, each frame pair's lead row (else its first row) of every run,
     every column, with ``ms_compute_per_frame`` (:mod:`experiments.report.judged_rows`); ``boxes``:
     the matched box pairs of one run per camera setting and recording (the "every object"
-    report), on :data:`~experiments.report.judged_rows.BOX_COLUMNS`."""
+    report), on :data:`~experiments.report.judged_rows.BOX_COLUMNS`; ``runs``: the run
+    records but :data:`UNREAD_RECORD_FIELDS`."""
 
     dirs: list[Path]
     frames: pd.DataFrame
@@ -84,7 +89,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
-        parts, runs = store.scan_sweep(d)
+        parts, runs = store.scan_sweep(d, exclude=UNREAD_RECORD_FIELDS)
         if runs.empty:
             continue
         known = runs["run_id"].isin(seen)
@@ -120,6 +125,10 @@ def setting_of_run(runs: pd.DataFrame, run_id: str, root: Path) -> tuple[Setting
     return settings_from_config(cfg), frame_range_from_config(cfg)
 
 
+#: Pair details a :class:`Context` keeps (``grand`` 0–18's report asks for 71, each with its two images).
+DETAILS_KEPT = 16
+
+
 @dataclass
 class Context:
     """What a report needs besides the sweep tables: data root, stage cache, pair details
@@ -134,15 +143,20 @@ class Context:
     def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
         """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised); the first
         one that needs the YOLOv3-tiny files finds them as the sweep did
-        (:func:`experiments.data.first_run.ensure_model_files`)."""
+        (:func:`experiments.data.first_run.ensure_model_files`). The :data:`DETAILS_KEPT` most
+        recently used are kept (a report asks for a pair again soon after, if at all)."""
         key = (run_id, prev, curr)
-        if key not in self.details:
-            settings, frames = setting_of_run(runs, run_id, self.root)
-            if not self.models_found and uses_bundled_files(settings.objects):
-                ensure_model_files()
-                self.models_found = True
-            self.details[key] = pair_detail(settings, frames, prev, curr, self.cache)
-            self.calls += 1
+        if key in self.details:
+            self.details[key] = self.details.pop(key)  # the most recently used last
+            return self.details[key]
+        settings, frames = setting_of_run(runs, run_id, self.root)
+        if not self.models_found and uses_bundled_files(settings.objects):
+            ensure_model_files()
+            self.models_found = True
+        self.details[key] = pair_detail(settings, frames, prev, curr, self.cache)
+        self.calls += 1
+        while len(self.details) > DETAILS_KEPT:  # each holds two images: a few MB
+            del self.details[next(iter(self.details))]
         return self.details[key]
 
     def settings(self, runs: pd.DataFrame, run_id: str) -> Settings:

@@ -94,6 +94,7 @@ from ttc.evaluation.errors import (
     frame_errors,
     lead_rows,
     mid_error,
+    rows_of_runs,
 )
 from ttc.evaluation.families import FAMILIES, against_best_classic, family_of, verdict_sentence
 from ttc.evaluation.lead import box_points, lead_box_of, lead_boxes, lead_clouds, lead_row
@@ -233,6 +234,7 @@ __all__ = [
     "reference_ttc",
     "run_metrics",
     "with_compute_times",
+    "rows_of_runs",
     "compute_times",
     "join_counts",
     "StageCounts",

@@ -80,6 +80,14 @@ def sensors_of(table: pd.DataFrame) -> tuple[str, ...]:
     return tuple(s for s in SENSORS if f"ttc_{s}" in table)
 
 
+def rows_of_runs(frames: pd.DataFrame, run_ids) -> pd.DataFrame:
+    """The rows of ``frames`` whose ``run_id`` is in ``run_ids``, index kept: ``frames``
+    itself when that is every row (a shallow copy, pandas copies on write: a report's
+    judged rows are not copied whole for a selection of all of them)."""
+    mask = frames["run_id"].isin(set(run_ids)).to_numpy()
+    return frames.copy(deep=False) if mask.all() else frames[mask]
+
+
 def lead_rows(frames: pd.DataFrame) -> pd.DataFrame:
     """One row per (run_id, frame): the lead row, else the pair's first row with its estimates
     blanked (NaN TTCs and ratios: the run has no estimate of the lead vehicle there)."""
@@ -185,8 +193,9 @@ def frame_errors(
     ``{s}_invalid`` (bool), ``{s}_mid``, ``{s}_rel_err``, ``{s}_outlier`` and
     ``{s}_false_alarm`` (1.0/0.0, NaN where not applicable), ``{s}_warns`` (bool); and
     ``ref_warns``, ``ms_per_frame``, ``ms_compute_per_frame`` (ms). Definitions in the module
-    docstring; ``outlier_rel`` a fraction, ``false_alarm_s`` and ``warning_s`` seconds."""
-    out = lead.copy()
+    docstring; ``outlier_rel`` a fraction, ``false_alarm_s`` and ``warning_s`` seconds.
+    ``lead`` is left as it is (pandas copies on write: its columns are not copied here)."""
+    out = lead.copy(deep=False)
     ref = out["ttc_ref_s"].to_numpy(dtype=float)
     judged = out["judgeable"].to_numpy(dtype=bool) & np.isfinite(ref) & (ref > 0)
     no_course = np.isposinf(ref)
