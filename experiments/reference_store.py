@@ -113,7 +113,7 @@ def recording_references(
     root = Path(data_dir) if data_dir else default_data_root()
     out = {}
     for sequence, ids in run_ids_by_recording(runs).items():
-        mine = frames[frames["run_id"].isin(ids)]
+        mine = ev.rows_of_runs(frames, ids)
         if ev.has_truth(mine):
             out[sequence] = ev.truth_reference(mine)
             continue
@@ -193,7 +193,7 @@ def object_references(
     cache = cache if cache is not None else StageCache(default_cache_dir())
     out = {}
     for sequence, ids in run_ids_by_recording(runs).items():
-        mine = frames[frames["run_id"].isin(ids)]
+        mine = ev.rows_of_runs(frames, ids)
         if ev.has_truth(mine):
             continue
         settings, rng = settings_of(ids[0])
