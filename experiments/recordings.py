@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import functools
 import json
+import math
+from json.encoder import encode_basestring_ascii
 from pathlib import Path
 
 import pandas as pd
@@ -46,18 +48,36 @@ def run_ids_by_recording(runs: pd.DataFrame) -> dict[str, list[str]]:
     return {seq: list(recording.index[recording == seq]) for seq in sorted(set(recording))}
 
 
+def _leaf_text(value: object) -> str:
+    """``json.dumps(value, sort_keys=True)``, without building an encoder for a scalar (a
+    ``grand`` sweep's setting ids flatten 28,000 configs of 90 leaves each)."""
+    if isinstance(value, str):
+        return encode_basestring_ascii(value)
+    if value is None or isinstance(value, bool):
+        return {None: "null", True: "true", False: "false"}[value]
+    if type(value) is int or (type(value) is float and math.isfinite(value)):
+        return repr(value)
+    return json.dumps(value, sort_keys=True)
+
+
 def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
-    """``{"a": {"b": 1}}`` → ``{"a.b": 1}`` (lists and scalars are leaves)."""
+    """``{"a": {"b": 1}}`` → ``{"a.b": "1"}``: each leaf as its JSON text (lists and scalars
+    are leaves)."""
     out: dict[str, object] = {}
     for key, value in tree.items():
         if isinstance(value, dict):
             out.update(_flat(value, f"{prefix}{key}."))
         else:
-            out[f"{prefix}{key}"] = json.dumps(value, sort_keys=True)
+            out[f"{prefix}{key}"] = _leaf_text(value)
     return out
 
 
-def recording_entries(runs: pd.DataFrame) -> set[str]:
+def _flat_configs(runs: pd.DataFrame) -> list[dict[str, object]]:
+    """Each run's stored config flattened (:func:`_flat`), in the order of ``runs``."""
+    return [_flat(json.loads(c)) for c in runs["config"]]
+
+
+def recording_entries(runs: pd.DataFrame, flat: list[dict[str, object]] | None = None) -> set[str]:
     """The setting entries (dotted keys) that belong to the recording, not to the setting:
     those with one value among each recording's runs of one choice on every axis
     (``detector.name``, ...), except the choices themselves. The dataset (name, frames, drive)
@@ -65,8 +85,8 @@ def recording_entries(runs: pd.DataFrame) -> set[str]:
     lidar crop, its camera pair distance), also where an option's own value differs from
     another's (``camera_ttc=vertical_ratio``'s 20 px beside ``median_ratio``'s 100 px on drive
     0052, 0 px for both on sequence 04); an entry a sweep varies within one choice is a
-    setting's."""
-    flat = pd.DataFrame([_flat(json.loads(c)) for c in runs["config"]], index=runs.index)
+    setting's. ``flat``: :func:`_flat_configs` of ``runs`` when the caller has them."""
+    flat = pd.DataFrame(_flat_configs(runs) if flat is None else flat, index=runs.index)
     choices = [f"{axis}.name" for axis in SETTING_AXES if axis != "dataset"]
     present = [c for c in choices if c in flat]
     keys = [recording_of(runs).to_numpy(), *(flat[c].to_numpy() for c in present)]
@@ -80,16 +100,16 @@ def setting_of(runs: pd.DataFrame, sensor: str | None = None) -> pd.Series:
     equal for two runs of one recording. ``sensor="camera"``: the axes that change only the
     lidar or the fused TTC are left out too, so runs that differ only there (same camera TTC)
     share an id. By run id."""
-    left_out = recording_entries(runs)
+    flats = _flat_configs(runs)  # each config parsed once
+    left_out = recording_entries(runs, flats)
     other = () if sensor != "camera" else (*only_sensor_axes("lidar"), *only_sensor_axes("fused"))
     prefixes = tuple(f"{axis}." for axis in other)
 
-    def key(config: str) -> str:
-        flat = _flat(json.loads(config))
+    def key(flat: dict[str, object]) -> str:
         kept = {k: v for k, v in sorted(flat.items()) if k not in left_out}
         return setting_hash({k: v for k, v in kept.items() if not k.startswith(prefixes)})
 
-    return pd.Series([key(c) for c in runs["config"]], index=runs["run_id"].to_numpy())
+    return pd.Series([key(f) for f in flats], index=runs["run_id"].to_numpy())
 
 
 def runs_drive_rankings(
