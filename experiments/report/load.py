@@ -4,12 +4,16 @@ intermediate arrays of a run's frame pair (recomputed through the stage cache)."
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import functools
 import json
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
+import pyarrow as pa
 import yaml
 from omegaconf import DictConfig, OmegaConf
 
@@ -89,7 +93,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
-        parts, runs = store.scan_sweep(d, exclude=UNREAD_RECORD_FIELDS)
+        parts, runs = store.scan_sweep(d, judged_rows.read_columns(), exclude=UNREAD_RECORD_FIELDS)
         if runs.empty:
             continue
         known = runs["run_id"].isin(seen)
@@ -108,7 +112,28 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
         times = judged_rows.compute_times(frames, ev.join_counts(counts))
         frames["ms_compute_per_frame"] = times.to_numpy()
+        frames = frames.drop(columns=[c for c in judged_rows.COUNTED_ONLY if c in frames])
+    release_freed_memory()  # the fragments read and cut: their pages back to the system
     return SweepData(dirs, frames, runs, overrides, repeated, boxes)
+
+
+@functools.cache
+def _libc() -> ctypes.CDLL | None:
+    """The C library when it is glibc (it has ``malloc_trim``), else None."""
+    name = ctypes.util.find_library("c")
+    libc = ctypes.CDLL(name) if name else None
+    return libc if libc is not None and hasattr(libc, "malloc_trim") else None
+
+
+def release_freed_memory() -> None:
+    """Give the memory freed since to the system: Arrow's memory pool (the string columns'
+    buffers) and glibc's heap (``malloc_trim``: glibc keeps the freed pages of many small
+    allocations, ≈ 0.3 GB after a report's load step of ``grand`` 0–18). Costs milliseconds; a
+    no-op where neither applies."""
+    pa.default_memory_pool().release_unused()
+    libc = _libc()
+    if libc is not None:
+        libc.malloc_trim(0)
 
 
 def run_config(config_json: str, root: Path) -> DictConfig:
