@@ -32,6 +32,7 @@ from experiments.report.load import (
     load_sweeps,
     make_context,
     reference_for,
+    release_freed_memory,
 )
 from ttc import evaluation as ev
 from ttc.features.model_files import ModelFileError
@@ -76,6 +77,7 @@ def build_report(
 
     def lap(name: str) -> None:
         nonlocal last
+        release_freed_memory()  # a step's transient tables: their pages back before the next
         now = time.perf_counter()
         times[name], last = now - last, now
 

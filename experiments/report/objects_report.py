@@ -50,7 +50,7 @@ def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.Da
     judged["setting"] = judged["run_id"].map(labels)
     write_csv(object_metrics(judged, ["setting", "role", "ttc_bin"]), out / "objects.csv")
     ranking = track_bootstrap_ranks(judged)
-    lead = track_bootstrap_ranks(judged[judged["role"] == "lead"])
+    lead = track_bootstrap_ranks(judged, role="lead")
     write_csv(ranking, out / "objects_ranking.csv")
     tau = ranking_agreement(lead.set_index("setting")["score"],
                             ranking.set_index("setting")["score"])  # fmt: skip

@@ -58,13 +58,20 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def _judged_pairs(judged: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
+    """The judged pairs of :func:`judge_objects`' table on ``columns`` only (no copy of the
+    others: ``grand``'s table holds 0.6 M pairs on some 40 columns)."""
+    return judged.loc[judged["judged"].to_numpy(dtype=bool), list(dict.fromkeys(columns))]
+
+
 def object_metrics(judged: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     """Per group of ``by`` (e.g. ``["run_id", "role", "ttc_bin"]``) over the judged pairs of
     :func:`judge_objects`: ``n_pairs``, ``n_tracks`` and per sensor ``{s}_medae_rel`` (median
     relative error of the valid estimates), ``{s}_invalid_rate`` (0–1) and ``{s}_score`` (the
     mean capped error, an invalid estimate 1: the ranking key, 0–1, lower is better) and
     ``{s}_mid_median`` (10⁻⁴)."""
-    t = judged[judged["judged"]]
+    measured = [f"{s}_{m}" for s in OBJECT_SENSORS for m in ("rel_err", "invalid", "score", "mid")]
+    t = _judged_pairs(judged, [*by, "ref_track_id", *measured])
     g = t.groupby(by, observed=True)
     out = pd.DataFrame({"n_pairs": g.size(), "n_tracks": g["ref_track_id"].nunique()})
     for s in OBJECT_SENSORS:
@@ -97,7 +104,7 @@ def breakdown(judged: pd.DataFrame, sensor: str = "camera") -> pd.DataFrame:
     """Where an estimate breaks down: per quantity (``distance_m``, ``box_w``,
     ``bearing_deg``, ``ttc_bin``) and range, ``n_pairs``, the median relative error and the
     invalid rate of ``sensor`` over the judged pairs of every run."""
-    t = judged[judged["judged"]].copy()
+    t = _judged_pairs(judged, [*BREAKDOWN_EDGES, "ttc_bin", "camera_rel_err", "camera_invalid"])
     t["bearing_deg"] = t["bearing_deg"].abs()
     parts = []
     for quantity, edges in BREAKDOWN_EDGES.items():
@@ -126,15 +133,23 @@ SEED = 0
 
 
 def track_bootstrap_ranks(
-    judged: pd.DataFrame, sensor: str = "camera", n_boot: int = N_BOOT, seed: int = SEED
+    judged: pd.DataFrame,
+    sensor: str = "camera",
+    n_boot: int = N_BOOT,
+    seed: int = SEED,
+    role: str | None = None,
 ) -> pd.DataFrame:
     """The all-object ranking of the settings (``setting`` column of :func:`judge_objects`'s
     judged pairs) by the mean ``{sensor}_score``, with rank intervals from a bootstrap whose
     blocks are tracks (``ref_track_id``): a replicate draws as many tracks as there are, with
     replacement, and keeps every judged pair of each (errors along one track are correlated).
     Columns: ``setting``, ``score``, ``rank`` (1: best), ``rank_lo``, ``rank_hi``
-    (:data:`CI` interval), ``n_pairs``."""
-    t = judged[judged["judged"]]
+    (:data:`CI` interval), ``n_pairs``. ``role`` (e.g. ``"lead"``): the pairs of that role
+    only."""
+    by_role = [] if role is None else ["role"]
+    t = _judged_pairs(judged, ["setting", "ref_track_id", *by_role, f"{sensor}_score"])
+    if role is not None:
+        t = t[t["role"].eq(role).to_numpy(dtype=bool)]
     tracks = np.sort(t["ref_track_id"].unique())
     settings = sorted(t["setting"].unique())
     if not len(tracks) or not settings:
@@ -165,7 +180,7 @@ def track_table(judged: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
     """Per judged track (``ref_track_id``): ``role``, ``class``, its frames, the reference
     distance range (m), the pairs judged (each setting's), the median relative camera TTC error
     and motion-in-depth error (10⁻⁴) over every setting, and the invalid rate; nearest first."""
-    t = judged[judged["judged"]]
+    t = _judged_pairs(judged, ["ref_track_id", "camera_rel_err", "camera_mid", "camera_invalid"])
     if t.empty:
         return pd.DataFrame()
     ref = reference.groupby("track_id").agg(
