@@ -58,8 +58,9 @@ def examine_worst(
     t: pd.DataFrame, runs: pd.DataFrame, reference: pd.DataFrame, ctx: Context, limit: int
 ) -> pd.DataFrame:
     """``t`` with the match-geometry reasons (:func:`ttc.evaluation.match_geometry` on the
-    recomputed pair detail) of its ``limit`` worst way-off rows added and ``examined``."""
-    t = t.copy()
+    recomputed pair detail) of its ``limit`` worst way-off rows added and ``examined`` (``t``
+    left as it is: a shallow copy, pandas copies on write the columns set here)."""
+    t = t.copy(deep=False)
     t["examined"] = False
     # a generated recording's truth has no rear distance: background keypoints go uncounted
     ref = reference.set_index("frame").get("distance_smooth_m", pd.Series(dtype=float))
@@ -225,7 +226,7 @@ def fp6_markdown(
             *(f"camera_mid_median_{r}" for r in ev.REGIMES), "camera_outlier_rate",
             "camera_medae_rel", "way_off_frames", "ms_compute_per_frame"]  # fmt: skip
     tied = ranking[ranking["rank_lo"] <= 1]
-    way = t[t["way_off"]]
+    way = t.loc[t["way_off"].to_numpy(dtype=bool), ["reasons"]]
     codes = way["reasons"].str.split(";").explode().value_counts().rename_axis("reason")
     worst = ev.worst_order(t).head(40)
     worst = worst.assign(ttc=worst["ttc_camera"].map(lambda v: format(v, ".2f")),

@@ -176,6 +176,7 @@ def bootstrap_rank_intervals(
     sensor: str = "camera",
     ci: float = CI,
     block: int | str = "auto",
+    metrics: pd.DataFrame | None = None,
     **thresholds: float,
 ) -> pd.DataFrame:
     """Paired moving-block bootstrap over frames of each run's rank and ranking metrics.
@@ -186,13 +187,15 @@ def bootstrap_rank_intervals(
     of ``{sensor}_invalid_rate``, ``{sensor}_mid_median``, ``{sensor}_outlier_rate`` and
     ``{sensor}_medae_rel``. ``thresholds`` go to :func:`~ttc.evaluation.metrics.run_metrics`
     (``outlier_rel``, ``false_alarm_s``, ``warning_s``). Deterministic for a ``seed``.
+    ``metrics``: that :func:`~ttc.evaluation.metrics.run_metrics` of ``frames`` (with the same
+    thresholds) when the caller has it, for the point ranks (else computed here).
     """
     t = judged_frames(frames, reference, **thresholds)
     t["ms_rank"] = ranking_time(t)
     t[f"{sensor}_approach_rel_err"] = t[f"{sensor}_rel_err"].where(t["regime"] == "approach")
 
-    def matrix(col: str) -> np.ndarray:
-        return t.pivot(index="run_id", columns="frame", values=col).to_numpy(float)
+    def matrix(col: str, table: pd.DataFrame = t) -> np.ndarray:
+        return table.pivot(index="run_id", columns="frame", values=col).to_numpy(float)
 
     runs = np.sort(t["run_id"].unique())
     invalid = matrix(f"{sensor}_invalid") > 0.5
@@ -207,8 +210,11 @@ def bootstrap_rank_intervals(
     replicate_ranks = ranks(values["invalid_rate"], values["mid_median"], values.pop("ms"))
     values["outlier_rate"] = replicate_means(matrix(f"{sensor}_outlier"), draws)
     values["medae_rel"] = replicate_medians(matrix(f"{sensor}_approach_rel_err"), draws)
+    del t, matrix  # the judged rows (also the default of matrix): freed before run_metrics
 
-    point = rank_runs(run_metrics(frames, reference, **thresholds), sensor)
+    if metrics is None:
+        metrics = run_metrics(frames, reference, **thresholds)
+    point = rank_runs(metrics, sensor)
     out = pd.DataFrame({"run_id": runs}).merge(point[["run_id", "rank"]], on="run_id")
     out["rank_lo"], out["rank_hi"] = rank_interval(replicate_ranks, ci)
     out["rank_median"] = np.median(replicate_ranks, axis=0)

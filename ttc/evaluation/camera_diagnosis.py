@@ -245,15 +245,18 @@ def worst_order(t: pd.DataFrame, per_pair: int = PER_PAIR, turns: str = "primary
     """Way-off rows, worst first (invalid first), at most ``per_pair`` per detector ×
     descriptor pair (matcher variants mostly repeat each other), round-robin over the values
     of ``turns`` (``primary``: the first reason code, or an axis such as ``detector``)."""
-    w = t[t["way_off"]].copy()
-    if w.empty:
-        return w
+    way = t["way_off"].to_numpy(dtype=bool)
+    if not way.any():
+        return t[way].copy()
+    keys = ["camera_rel_err", "reasons", "setting", "frame", "dataset", "detector", "descriptor"]
+    w = t.loc[way, [c for c in dict.fromkeys([*keys, turns]) if c in t]]  # ordered on these
     w["severity"] = w["camera_rel_err"].fillna(np.inf)
     w["primary"] = w["reasons"].str.split(";").str[0]
     w = w.sort_values(["severity", "setting", "frame"], ascending=[0, 1, 1])
     w = w[w.groupby(["dataset", "detector", "descriptor"]).cumcount() < per_pair]
     w["turn"] = w.groupby(turns).cumcount()
-    return w.sort_values(["turn", "severity", "setting", "frame"], ascending=[1, 0, 1, 1])
+    w = w.sort_values(["turn", "severity", "setting", "frame"], ascending=[1, 0, 1, 1])
+    return t.loc[w.index].assign(severity=w["severity"], primary=w["primary"], turn=w["turn"])
 
 
 # --------------------------------------------------------------------------- ranking
@@ -268,8 +271,9 @@ def camera_ranking(
     for _, group in t.groupby("dataset", sort=True):
         ids = group["run_id"].unique()
         subset = rows_of_runs(frames, ids)
-        ranked = rank_runs(run_metrics(subset, reference), "camera")
-        ci = bootstrap_rank_intervals(subset, reference, n_boot=n_boot, seed=0)
+        metrics = run_metrics(subset, reference)
+        ranked = rank_runs(metrics, "camera")
+        ci = bootstrap_rank_intervals(subset, reference, n_boot=n_boot, seed=0, metrics=metrics)
         parts.append(ranked.merge(ci.drop(columns="rank"), on="run_id"))
     ranking = pd.concat(parts, ignore_index=True)
     labels = t.drop_duplicates("run_id").set_index("run_id")["setting"]

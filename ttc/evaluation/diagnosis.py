@@ -83,8 +83,9 @@ def with_reasons(
 ) -> pd.DataFrame:
     """``t`` with ``reasons`` / ``reason_text`` on the rows where the boolean column
     ``selected`` is true: the rules that fire, else ``fallback_code`` and the text of
-    ``fallback``; '' on the other rows."""
-    t = t.copy()
+    ``fallback``; '' on the other rows (``t`` left as it is: a shallow copy, pandas copies on
+    write)."""
+    t = t.copy(deep=False)
     chosen = t[t[selected]]
     found = combine_reasons(rules(chosen), chosen.index)
     none = found["reasons"].eq("")
