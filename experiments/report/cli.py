@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import pyarrow as pa
 
 from experiments import store
 from experiments.data.first_run import fail
@@ -206,6 +207,10 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> None:
     """Run the command (``argv``: the arguments, default ``sys.argv[1:]``)."""
     matplotlib.use("Agg")  # files only
+    # Arrow's buffers (the string columns) from glibc's heap, which release_freed_memory
+    # trims after each step, not from mimalloc, which keeps what it freed: grand 0-18's
+    # report peaks 0.07 GB lower (FP.6 1.49 -> 1.42 GB, objects 1.50 -> 1.42 GB)
+    pa.set_memory_pool(pa.system_memory_pool())
     p = parser()
     args = p.parse_args(argv)
     for d in args.sweep_dirs:
