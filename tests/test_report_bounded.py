@@ -11,9 +11,20 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pyarrow as pa
 import pytest
 
-from experiments.report.judged_rows import judged_mask
+from experiments.report.judged_rows import (
+    BOX_COLUMNS,
+    COUNTED_ONLY,
+    KEY_COLUMNS,
+    TIME_COLUMNS,
+    UNREAD_COLUMNS,
+    is_in,
+    judged_mask,
+    read_columns,
+    row_columns,
+)
 from tests.conftest import PROJECT_ROOT, data_root
 from tests.test_report import env_for, make_report, make_sweep, shared_root
 from ttc import evaluation as ev
@@ -84,3 +95,18 @@ def test_judged_mask_keeps_the_rows_lead_rows_picks() -> None:
     assert judged_mask(keys).tolist() == [False, True, True, False, True, False]
     picked = ev.lead_rows(keys[judged_mask(keys)])
     assert picked.equals(ev.lead_rows(keys))
+
+
+def test_run_ids_matched_as_pandas_matches_them() -> None:
+    values = pd.Series(["a", "b", None, "c", "a"], dtype="str")
+    ids = pa.array(["a", "c", "zz"])
+    assert is_in(values, ids).tolist() == values.isin({"a", "c", "zz"}).tolist()
+    assert is_in(values, pa.array([], pa.string())).tolist() == [False] * 5
+
+
+def test_the_columns_left_unread_are_row_columns_no_step_needs() -> None:
+    """A renamed column would leave its old name here, unread and unnoticed."""
+    assert set(UNREAD_COLUMNS) <= set(row_columns())
+    needed = {*KEY_COLUMNS, *TIME_COLUMNS, *BOX_COLUMNS}
+    assert not needed & set(UNREAD_COLUMNS)
+    assert set(COUNTED_ONLY) <= set(read_columns())

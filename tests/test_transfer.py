@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.recordings import recording_entries, setting_of
+from experiments.recordings import _leaf_text, recording_entries, setting_of
 from ttc.evaluation.transfer import (
     best_elsewhere,
     recording_agreement,
@@ -86,3 +86,12 @@ def test_a_setting_across_recordings_leaves_out_what_each_recording_fixes() -> N
                    ("c", "odo/04", 40.0, "orb", "median")])  # fmt: skip
     assert "lidar.crop.max_x" not in recording_entries(swept)
     assert setting_of(swept)["a"] != setting_of(swept)["b"]
+
+
+@pytest.mark.parametrize(
+    "value", ["fast", "é\n\"x", 3, -1, 0.1 + 0.2, 1e-7, 1e300, float("nan"), float("-inf"),
+              True, False, None, [1, "a", [2.5]], {"b": 1, "a": None}, ""],
+)  # fmt: skip
+def test_a_config_leaf_is_its_json_text(value) -> None:
+    """Setting ids hash the leaves' text: the fast path writes exactly what json.dumps does."""
+    assert _leaf_text(value) == json.dumps(value, sort_keys=True)
