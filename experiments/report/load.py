@@ -43,7 +43,8 @@ UNREAD_RECORD_FIELDS: tuple[str, ...] = ("inputs",)
 class SweepData:
     """Rows and run records of one or more sweeps (run ids unique across them). ``frames``:
     the rows a report judges, each frame pair's lead row (else its first row) of every run,
-    every column, with ``ms_compute_per_frame`` (:mod:`experiments.report.judged_rows`); ``boxes``:
+    on the columns a report reads (:func:`~experiments.report.judged_rows.read_columns`, no
+    ``cached_*``), with ``ms_compute_per_frame`` (:mod:`experiments.report.judged_rows`); ``boxes``:
     the matched box pairs of one run per camera setting and recording (the "every object"
     report), on :data:`~experiments.report.judged_rows.BOX_COLUMNS`; ``runs``: the run
     records but :data:`UNREAD_RECORD_FIELDS`."""
