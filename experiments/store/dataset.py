@@ -195,9 +195,12 @@ def rows_dataset(sweep_dir: Path, checks: Checks | None = None) -> ds.Dataset:
     return parts[0] if len(parts) == 1 else ds.dataset(parts)
 
 
-def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
+def runs_table(records: list[dict[str, Any]], columns: list[str] | None = None) -> pd.DataFrame:
     """The run records as one table, sorted by run id (types as a parquet round trip gives
-    them: the table ``runs.parquet`` held)."""
+    them: the table ``runs.parquet`` held); ``columns``: only these fields (those some record
+    has), e.g. without the long texts of ``inputs`` a reader does not need."""
+    if columns is not None:
+        records = [{k: r[k] for k in columns if k in r} for r in records]
     runs = pd.DataFrame.from_records(records)
     if runs.empty:
         return runs

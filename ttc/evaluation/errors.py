@@ -179,31 +179,71 @@ def mid_error(ratio: np.ndarray, ratio_ref: np.ndarray) -> np.ndarray:
     return out
 
 
-def _compute_times(lead: pd.DataFrame) -> pd.Series:
+def _stage_medians(
+    lead: pd.DataFrame, stage: str, own: pd.Series, elsewhere: pd.DataFrame | None
+) -> pd.Series:
+    """Per row of ``lead``: the median computed time (ms) of ``stage`` with the row's stage
+    inputs on the row's frame, else on any frame, over ``own`` (the rows' computed times, NaN
+    where cached) and the counted times of rows judged elsewhere
+    (:func:`computed_stage_times`)."""
+    _, _, inputs = CACHED_STAGE_INPUTS[stage]
+    keys = [c for c in inputs if c in lead]
+    table = pd.DataFrame({**{c: lead[c] for c in keys}, "frame": lead["frame"], "own": own})
+    more = None if elsewhere is None else elsewhere[elsewhere["stage"] == stage]
+    if more is not None and len(more):  # the same multisets as the rows of every fragment
+        extra = more.loc[more.index.repeat(more["count"]), [*keys, "frame", "ms"]]
+        extra = extra.astype({"frame": lead["frame"].dtype})
+        table = pd.concat([table, extra.rename(columns={"ms": "own"})], ignore_index=True)
+    group = [table[c] for c in keys]
+    same_frame = table["own"].groupby([*group, table["frame"]]).transform("median")
+    any_frame = table["own"].groupby(group).transform("median") if keys else table["own"].median()
+    computed = same_frame.fillna(any_frame).iloc[: len(lead)]
+    return pd.Series(computed.to_numpy(), index=lead.index)
+
+
+def _compute_times(lead: pd.DataFrame, elsewhere: pd.DataFrame | None = None) -> pd.Series:
     """Per-row ``ms_per_frame`` with cached stages' times replaced by computed ones (ms): the
     median computing time of the same stage inputs on the same frame, else on any frame, else
-    (no run of ``lead`` computed it) the load time."""
+    (no run of ``lead`` or ``elsewhere`` computed it) the load time."""
     if "ms_compute_per_frame" in lead:  # looked up beforehand (:func:`with_compute_times`)
         return lead["ms_compute_per_frame"]
     total = lead[stage_time_columns(lead)].sum(axis=1)
-    for ms, flag, inputs in CACHED_STAGE_INPUTS.values():
+    for stage, (ms, flag, _) in CACHED_STAGE_INPUTS.items():
         if ms not in lead or flag not in lead:
             continue
         cached = lead[flag].astype(bool)
-        own = lead[ms].where(~cached)
-        stage = [lead[c] for c in inputs if c in lead]
-        same_frame = own.groupby([*stage, lead["frame"]]).transform("median")
-        any_frame = own.groupby(stage).transform("median") if stage else own.median()
-        computed = same_frame.fillna(any_frame)
+        computed = _stage_medians(lead, stage, lead[ms].where(~cached), elsewhere)
         total = total + (computed - lead[ms]).where(cached & computed.notna(), 0.0)
     return total
 
 
-def with_compute_times(frames: pd.DataFrame) -> pd.DataFrame:
+def computed_stage_times(lead: pd.DataFrame) -> pd.DataFrame:
+    """The computed (not cached) times of each cached stage in ``lead``, counted: one row per
+    ``stage``, value of its input axes (:data:`CACHED_STAGE_INPUTS`; None where not the
+    stage's), ``frame`` and ``ms``, with ``count`` (rows): what :func:`with_compute_times`
+    needs of rows judged elsewhere."""
+    axes = sorted({c for _, _, inputs in CACHED_STAGE_INPUTS.values() for c in inputs})
+    parts = []
+    for stage, (ms, flag, inputs) in CACHED_STAGE_INPUTS.items():
+        if ms not in lead or flag not in lead:
+            continue
+        keys = [c for c in inputs if c in lead]
+        done = lead.loc[~lead[flag].astype(bool) & lead[ms].notna(), [*keys, "frame", ms]]
+        counted = done.rename(columns={ms: "ms"}).value_counts(dropna=False).rename("count")
+        parts.append(counted.reset_index().assign(stage=stage))
+    columns = ["stage", *axes, "frame", "ms", "count"]
+    if not parts:
+        return pd.DataFrame(columns=columns)
+    return pd.concat(parts, ignore_index=True).reindex(columns=columns)
+
+
+def with_compute_times(frames: pd.DataFrame, elsewhere: pd.DataFrame | None = None) -> pd.DataFrame:
     """``frames`` with ``ms_compute_per_frame`` per row, the cached stages' computing times
-    looked up over every row of ``frames``. Call it on the union of sweeps before judging a
-    subset of runs, so a stage computed by a run outside the subset still has its time."""
-    return frames.assign(ms_compute_per_frame=_compute_times(frames))
+    looked up over every row of ``frames`` and the rows ``elsewhere`` counts
+    (:func:`computed_stage_times` of rows judged apart, e.g. the other fragments of a sweep).
+    Call it on the union of sweeps before judging a subset of runs, so a stage computed by a
+    run outside the subset still has its time."""
+    return frames.assign(ms_compute_per_frame=_compute_times(frames, elsewhere))
 
 
 def frame_errors(
