@@ -64,24 +64,51 @@ def usage() -> str:
     )
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Dispatch ``argv`` (default ``sys.argv[1:]``) to its subcommand's module."""
-    args = sys.argv[1:] if argv is None else list(argv)
+#: Subcommands handed to the warm server when one is running (``experiments.warm``).
+SERVED = ("run", "sweep")
+
+
+def run_subcommand(args: list[str]) -> int:
+    """Run ``args`` (a subcommand and its arguments) in this process; its exit status
+    (``SystemExit`` of the subcommand passes through)."""
     if not args or args[0] in ("-h", "--help", "help"):
         print(usage(), end="")
-        sys.exit(0 if args else 2)
+        return 0 if args else 2
     name, rest = args[0], args[1:]
     if name not in SUBCOMMANDS:
-        sys.exit(f"ttc-bench: unknown subcommand {name!r}\n\n{usage()}")
+        print(f"ttc-bench: unknown subcommand {name!r}\n\n{usage()}", file=sys.stderr)
+        return 1
     sub = SUBCOMMANDS[name]
     if name in NO_ARGUMENTS and rest:
         print(f"usage: ttc-bench {name}\n\n{sub.summary} (takes no arguments).")
-        sys.exit(0 if rest[0] in ("-h", "--help") else 2)
+        return 0 if rest[0] in ("-h", "--help") else 2
     sys.argv = [f"ttc-bench {name}", *sub.prefix, *rest]
     try:
         runpy.run_module(sub.module, run_name="__main__", alter_sys=True)
     except BrokenPipeError:  # `ttc-bench schema | head`: the reader left, nothing is wrong
         sys.stderr.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Dispatch ``argv`` (default ``sys.argv[1:]``) to its subcommand's module: on the warm
+    server when one serves this code and environment (``experiments.warm``; ``run`` and
+    ``sweep``), else here, starting a server for the next command afterwards."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    forwarded = None
+    if args and args[0] in SERVED and argv is None:
+        from experiments.warm.client import forward  # noqa: PLC0415 (standard library only)
+
+        forwarded = forward(args)
+        if forwarded.status is not None:
+            sys.exit(forwarded.status)
+    try:
+        sys.exit(run_subcommand(args))
+    finally:
+        if forwarded is not None and forwarded.start is not None:
+            from experiments.warm.client import start_server  # noqa: PLC0415
+
+            start_server(forwarded)
 
 
 if __name__ == "__main__":

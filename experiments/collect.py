@@ -20,10 +20,6 @@ from ttc.atomic import remove_stale_temporaries
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
 SETTING_COLUMNS = list(SETTING_AXES)
-#: The fields of the run records the summary reads (the rest, e.g. ``inputs``, left out of
-#: its runs table: 28,000 records' long texts cost seconds to convert and to filter).
-SUMMARY_RECORD_FIELDS = ["run_id", "status", "message", "n_frame_errors", "config",
-                         *SETTING_COLUMNS]  # fmt: skip
 
 
 #: Settings listed by the summary's second table (the fused ranking of a sweep ranked on
@@ -133,7 +129,7 @@ def summarise_sweep(
     sweep_dir = Path(sweep_dir)
     remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
     records = store.list_records(sweep_dir)
-    runs = store.runs_table(records, SUMMARY_RECORD_FIELDS)
+    runs = store.runs_table(records, exclude=store.UNREAD_RECORD_FIELDS)  # long texts
     n_rows = store.row_count(records)
     folder = progress.progress_dir(sweep_dir)
     outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None

@@ -86,8 +86,9 @@ def with_neutral_options(setting: dict[str, Any]) -> dict[str, Any]:
 
 def with_neutral_axes(table: pd.DataFrame) -> pd.DataFrame:
     """``table`` (frames or run records) with the column of every :data:`NEUTRAL_OPTIONS` axis,
-    its off value where a row was recorded before the axis existed."""
-    out = table.copy()
+    its off value where a row was recorded before the axis existed. ``table`` is left as it
+    is (a shallow copy: pandas copies on write; no second copy of a report's rows)."""
+    out = table.copy(deep=False)
     for axis, key, off in NEUTRAL_OPTIONS:
         if key == "name" and not out.empty:
             out[axis] = out[axis].fillna(off) if axis in out else off

@@ -27,15 +27,19 @@ import inspect
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from experiments.store.dataset import Fragment, fragments, iter_tables, unified_schema
 from experiments.store.files import write_parquet_atomic
+
+if TYPE_CHECKING:
+    from ttc.evaluation.stage_times import StageCounts
 
 #: Folder of the kept files, under the sweep folder.
 CACHE_DIR = ".summary"
@@ -45,6 +49,7 @@ METRICS_MODULES = (
     "ttc.evaluation.metrics",
     "ttc.evaluation.errors",
     "ttc.evaluation.reference",
+    "ttc.evaluation.stage_times",
     "ttc.settings",
 )
 
@@ -169,46 +174,81 @@ def lead_rows(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> p
     return _whole([parts[i] for i in range(len(sweep.frags))])
 
 
-def _stage_keys(times: pd.DataFrame) -> pd.Series:
-    """Per row of a times table: its stage and input values, as one text."""
-    axes = [c for c in times.columns if c not in ("stage", "frame", "ms", "count")]
-    values = times[["stage", *axes]].astype(object).where(times[["stage", *axes]].notna(), None)
-    return pd.Series([json.dumps(v) for v in values.to_numpy().tolist()], index=times.index)
+def _stages(sweep: _Sweep) -> dict[str, list[str]]:
+    """The cached stages whose time and flag columns the sweep's rows have: name → its input
+    axes the rows have (:data:`ttc.evaluation.CACHED_STAGE_INPUTS`), as
+    :func:`ttc.evaluation.stage_time_counts` counts them."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
+
+    have = set(sweep.columns)
+    return {name: [c for c in inputs if c in have]
+            for name, (ms, flag, inputs) in ev.CACHED_STAGE_INPUTS.items()
+            if ms in have and flag in have}  # fmt: skip
 
 
 def fragment_times(lead: pd.DataFrame) -> pd.DataFrame:
-    """What a fragment's runs' computing times (:func:`ttc.evaluation.with_compute_times`)
-    take from and give to the sweep: its rows' computed stage times, counted
-    (:func:`ttc.evaluation.computed_stage_times`), and with ``count`` 0 (``frame`` -1, no
-    ``ms``) the stage inputs its cached rows look up."""
+    """What a fragment's runs' computing times (``ms_compute_per_frame``) take from and give
+    to the sweep, as one table (column ``stage``, the stages' axes, ``frame``, ``ms``, ``n``):
+    its lead rows' computed stage times counted (:func:`ttc.evaluation.stage_time_counts`,
+    ``n`` ≥ 1), and with ``n`` 0 (``frame`` -1, no ``ms``) the stage inputs its cached rows
+    look up."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
 
-    computed = ev.computed_stage_times(lead)
-    uses = []
-    for stage, (ms, flag, inputs) in ev.CACHED_STAGE_INPUTS.items():
-        if ms in lead and flag in lead:
-            keys = [c for c in inputs if c in lead]
-            cached = lead.loc[lead[flag].astype(bool), keys].drop_duplicates()
-            cached = cached if keys else cached.iloc[:1]  # no inputs: one stage key
-            uses.append(cached.assign(stage=stage, frame=-1, ms=np.nan, count=0))
-    return pd.concat([computed, *uses], ignore_index=True).reindex(columns=computed.columns)
+    parts, axes = [], []
+    for name, counted in ev.stage_time_counts(lead).items():
+        _, flag, inputs = ev.CACHED_STAGE_INPUTS[name]
+        keys = [c for c in inputs if c in lead]
+        axes += [c for c in keys if c not in axes]
+        looked_up = lead.loc[lead[flag].astype(bool).to_numpy(), keys]
+        looked_up = looked_up.drop_duplicates() if keys else looked_up.iloc[:1]
+        uses = looked_up.assign(frame=-1, ms=np.nan, n=0)
+        parts += [counted.assign(stage=name), uses.assign(stage=name)]
+    columns = ["stage", *axes, "frame", "ms", "n"]
+    if not parts:
+        return pd.DataFrame(columns=columns)
+    filled = [p for p in parts if len(p)] or parts[:1]  # no empty table sets a type
+    return pd.concat(filled, ignore_index=True).reindex(columns=columns)
 
 
-def _depends(times: list[pd.DataFrame]) -> list[str]:
-    """Per fragment (its :func:`fragment_times`): a digest of the sweep's computed times of
-    the stage inputs it names, i.e. of everything its runs' computing times depend on."""
-    every = pd.concat(times, keys=range(len(times)), names=["part", None]).reset_index("part")
-    every["key"] = _stage_keys(every).to_numpy()
-    done = every[every["count"] > 0].sort_values(["key", "frame", "ms", "count"])
-    by_key = {k: json.dumps(g[["frame", "ms", "count"]].to_numpy(dtype=float).tolist())
-              for k, g in done.groupby("key", sort=False)}  # fmt: skip
-    named = every.groupby("part")["key"].unique()
-    return [
-        hashlib.sha256(
-            json.dumps(sorted((k, by_key.get(k)) for k in named.get(i, []))).encode()
-        ).hexdigest()
-        for i in range(len(times))
-    ]
+def _split_times(
+    kept: pa.Table, stages: dict[str, list[str]], schema: pa.Schema
+) -> tuple[StageCounts, StageCounts]:
+    """A :func:`fragment_times` table as (its counts, the stage inputs it looks up), by
+    stage: the stage's axes and ``frame`` in the types of the sweep's rows (``schema``), as
+    :func:`ttc.evaluation.stage_time_counts` of its lead rows gives them."""
+    from ttc.evaluation.stage_times import COUNT_COLUMNS  # noqa: PLC0415 (SciPy: slow)
+
+    counts, uses = {}, {}
+    for name, keys in stages.items():
+        types = [pa.field(c, schema.field(c).type) for c in [*keys, "frame"]]
+        types += [pa.field("ms", pa.float64()), pa.field("n", pa.int64())]
+        mine = kept.filter(pc.equal(kept["stage"], name)).select([*keys, *COUNT_COLUMNS])
+        table = mine.cast(pa.schema(types)).to_pandas()
+        looked_up = table["n"].to_numpy() == 0
+        counts[name] = table[~looked_up].reset_index(drop=True)
+        uses[name] = table.loc[looked_up, keys].reset_index(drop=True)
+    return counts, uses
+
+
+def _depends(counts: StageCounts, uses: list[StageCounts]) -> list[str]:
+    """Per fragment (the stage inputs it looks up, :func:`_split_times`): a digest of the
+    sweep's computed times (``counts``, :func:`ttc.evaluation.join_counts` of every
+    fragment's) of those stage inputs, on every frame: all its runs' computing times depend
+    on."""
+    digests = [hashlib.sha256() for _ in uses]
+    for name, table in sorted(counts.items()):
+        keys = [c for c in table.columns if c not in ("frame", "ms", "n")]
+        times = table.groupby([*keys, "frame", "ms"], dropna=False)["n"].sum().reset_index()
+        parts = [u[name].assign(part=i) for i, u in enumerate(uses) if len(u.get(name, ()))]
+        if not parts:
+            continue
+        asked = pd.concat(parts, ignore_index=True).drop_duplicates()
+        found = asked.merge(times, on=keys) if keys else asked.merge(times, how="cross")
+        for part, rows in found.groupby("part", sort=True):
+            rows = rows.drop(columns="part").sort_values([*keys, "frame", "ms"])
+            digests[part].update(name.encode())
+            digests[part].update(pd.util.hash_pandas_object(rows, index=False).to_numpy())
+    return [d.hexdigest() for d in digests]
 
 
 def run_metrics(
@@ -217,8 +257,9 @@ def run_metrics(
     """:func:`ttc.evaluation.run_metrics` of the sweep's :func:`lead_rows` against
     ``reference`` (one row per run with lead rows, sorted by run id), computed a fragment at a
     time and kept (module docstring): only the fragments without kept metrics have their lead
-    rows read or computed, all at once, their computing times looked up over every
-    fragment's computed stage times (:func:`fragment_times`, kept too)."""
+    rows read or computed, all at once, their computing times looked up
+    (:func:`ttc.evaluation.compute_times`) over every fragment's counted computed stage times
+    (:func:`fragment_times`, kept too): the times counting every lead row at once gives."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
     sweep = _open(sweep_dir, records)
@@ -229,22 +270,23 @@ def run_metrics(
     times_key = hashlib.sha256((sweep.key + code + inspect.getsource(fragment_times)).encode())
     times_paths = [cache_path(sweep.sweep_dir, f, times_key.hexdigest(), "times")
                    for f in sweep.frags]  # fmt: skip
-    kept = {i: _read_kept(p) for i, p in enumerate(times_paths)}
-    times = {i: t.to_pandas() for i, t in kept.items() if t is not None}
+    times = {i: t for i, p in enumerate(times_paths) if (t := _read_kept(p)) is not None}
     leads = sweep.lead_tables([i for i in range(n) if i not in times])
     for i, table in leads.items():
-        times[i] = _keep(fragment_times(table.to_pandas()), times_paths[i]).to_pandas()
-    ordered_times = [times[i] for i in range(n)]
+        times[i] = _keep(fragment_times(table.to_pandas()), times_paths[i])
+    stages = _stages(sweep)
+    split = [_split_times(times[i], stages, sweep.schema) for i in range(n)]
+    counts = ev.join_counts(c for c, _ in split)
     key = f"{sweep.key}|{frame_digest(reference)}|{code}"
     paths = [cache_path(sweep.sweep_dir, f, f"{key}|{d}", "metrics")
-             for f, d in zip(sweep.frags, _depends(ordered_times), strict=True)]  # fmt: skip
+             for f, d in zip(sweep.frags, _depends(counts, [u for _, u in split]), strict=True)]  # fmt: skip
     parts = {i: t for i, p in enumerate(paths) if (t := _read_kept(p)) is not None}
     todo = [i for i in range(n) if i not in parts]
     if todo:
         leads.update(sweep.lead_tables([i for i in todo if i not in leads]))
-        rest = [ordered_times[i] for i in range(n) if i not in set(todo)]
-        elsewhere = pd.concat(rest, ignore_index=True) if rest else None
-        lead = ev.with_compute_times(_whole([leads[i] for i in todo]), elsewhere)
+        lead = _whole([leads[i] for i in todo])
+        if len(lead):
+            lead = lead.assign(ms_compute_per_frame=ev.compute_times(lead, counts))
         metrics = ev.run_metrics(lead, reference) if len(lead) else pd.DataFrame({"run_id": []})
         for i in todo:
             mine = metrics["run_id"].isin(list(sweep.frags[i].n_rows)).to_numpy()

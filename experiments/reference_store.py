@@ -114,7 +114,7 @@ def recording_references(
     root = Path(data_dir) if data_dir else default_data_root()
     out = {}
     for sequence, ids in run_ids_by_recording(runs).items():
-        mine = None if frames is None else frames[frames["run_id"].isin(ids)]
+        mine = None if frames is None else ev.rows_of_runs(frames, ids)
         if mine is not None and ev.has_truth(mine):
             out[sequence] = ev.truth_reference(mine)
             continue
@@ -194,7 +194,7 @@ def object_references(
     cache = cache if cache is not None else StageCache(default_cache_dir())
     out = {}
     for sequence, ids in run_ids_by_recording(runs).items():
-        mine = frames[frames["run_id"].isin(ids)]
+        mine = ev.rows_of_runs(frames, ids)
         if ev.has_truth(mine):
             continue
         settings, rng = settings_of(ids[0])

@@ -9,6 +9,9 @@ from pathlib import Path
 import pytest
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
+#: The suite's commands run without the warm server (experiments.warm), which would outlive
+#: them; tests/test_warm_server.py turns it on for its own commands.
+os.environ.setdefault("TTC_BENCH_SERVER", "0")
 DEFAULT_DATA_ROOT = PROJECT_ROOT.parent / "shared" / "data"
 
 

@@ -27,7 +27,7 @@ def test_reduced_benchmark_writes_report(tmp_path: Path) -> None:
                 "nocache_over_cold", "warm_filter_s", "peak_rss_mb", "git_commit", "versions",
                 "cold_over_floor_unique", "rerun_s", "small_cold_s", "small_rerun_s",
                 "floor_engine_s", "cold_over_floor_engine", "cold_fixed_s",
-                "warm_filter_fixed_s"):  # fmt: skip
+                "warm_filter_fixed_s", "warm_filter_lead_in_s", "warm_filter_local_s"):  # fmt: skip
         assert key in report, key
     steps = report["floor_ms_by_stage"]["steps"]
     assert 0 < steps < 1e3 * report["cold_s"]  # FP.1-FP.4 once, a part of the cold sweep

@@ -46,7 +46,7 @@ def write_sweep_metrics(data: SweepData, reference) -> list[Path]:
         runs = data.runs[data.runs["sweep_dir"] == str(d.resolve())]
         if runs.empty:
             continue
-        frames = data.frames[data.frames["run_id"].isin(runs["run_id"])]
+        frames = ev.rows_of_runs(data.frames, runs["run_id"])
         path = d / "metrics.parquet"
         if isinstance(reference, dict):
             table = drives_report.sweep_metrics_by_drive(frames, runs, reference)

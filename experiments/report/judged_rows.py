@@ -21,7 +21,7 @@ from ttc.settings import AXES, CACHED_STAGES, only_sensor_axes
 
 #: Columns that pick the rows: the pair (run, frame), its lead flag and its box pair.
 KEY_COLUMNS: tuple[str, ...] = ("run_id", "frame", "is_lead", "prev_box", "curr_box")
-#: Columns :func:`ttc.evaluation.with_compute_times` reads on every row.
+#: Columns :func:`ttc.evaluation.stage_time_counts` reads on every row.
 TIME_COLUMNS: tuple[str, ...] = (
     "frame",
     *dict.fromkeys(a for s in CACHED_STAGES for a in s.axes),
@@ -72,14 +72,15 @@ def box_runs(runs: pd.DataFrame) -> set[str]:
 
 def read_rows(
     parts: Iterable[pd.DataFrame], runs: pd.DataFrame
-) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """(judged rows, box rows, time rows) of the runs ``runs`` of a sweep whose rows come as
-    ``parts`` (:func:`experiments.store.scan_sweep`: a fragment at a time; every row of a run
-    is in one part): judged rows (:func:`judged_mask`) on every column, the matched box pairs
-    of :func:`box_runs` on :data:`BOX_COLUMNS`, every row on :data:`TIME_COLUMNS` with
-    ``judged`` (bool). Memory: what is kept, and one part."""
+) -> tuple[pd.DataFrame, pd.DataFrame, ev.StageCounts]:
+    """(judged rows, box rows, stage time counts) of the runs ``runs`` of a sweep whose rows
+    come as ``parts`` (:func:`experiments.store.scan_sweep`: a fragment at a time; every row
+    of a run is in one part): judged rows (:func:`judged_mask`) on every column, the matched
+    box pairs of :func:`box_runs` on :data:`BOX_COLUMNS`, and the computed stage times of
+    every row counted (:func:`ttc.evaluation.stage_time_counts`: a few rows per stage, frame
+    and value). Memory: what is kept, and one part."""
     ids, boxed_ids = set(runs["run_id"]), box_runs(runs)
-    lead_parts, box_parts, time_parts = [], [], []
+    lead_parts, box_parts, counts = [], [], []
     for part in parts:
         mine = part["run_id"].isin(ids).to_numpy()
         judged = judged_mask(part[list(KEY_COLUMNS)]) & mine
@@ -92,10 +93,9 @@ def read_rows(
         order = [c for c in row_columns() if c in part]
         lead_parts.append(part.loc[judged, order])
         box_parts.append(part.loc[boxed, [c for c in BOX_COLUMNS if c in part]])
-        times = part.loc[mine, [c for c in TIME_COLUMNS if c in part]]
-        time_parts.append(times.assign(judged=judged[mine]))
+        counts.append(ev.stage_time_counts(part.loc[mine, [c for c in TIME_COLUMNS if c in part]]))
         del part
-    return tuple(_stacked(p) for p in (lead_parts, box_parts, time_parts))  # type: ignore[return-value]
+    return _stacked(lead_parts), _stacked(box_parts), ev.join_counts(counts)
 
 
 def _stacked(parts: list[pd.DataFrame]) -> pd.DataFrame:
@@ -103,15 +103,10 @@ def _stacked(parts: list[pd.DataFrame]) -> pd.DataFrame:
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
 
-def compute_times(times: pd.DataFrame) -> pd.Series:
-    """``ms_compute_per_frame`` (ms) of the ``judged`` rows of ``times`` (every row of the
-    sweeps on :data:`TIME_COLUMNS`), looked up over all of them
-    (:func:`ttc.evaluation.with_compute_times`); the axes are grouped by integer codes."""
-    narrow = times.drop(columns="judged")
-    axes = list(dict.fromkeys(a for s in CACHED_STAGES for a in s.axes))
-    filled = with_neutral_axes(narrow[[a for a in axes if a in narrow]])  # axes added since
-    for axis in (a for a in axes if a in filled):
-        codes = pd.Series(pd.factorize(filled[axis])[0])
-        narrow[axis] = codes.where(codes >= 0).to_numpy()  # NaN stays NaN (not grouped)
-    ms = ev.with_compute_times(narrow)["ms_compute_per_frame"]
-    return ms[times["judged"].to_numpy()].reset_index(drop=True)
+def compute_times(frames: pd.DataFrame, counts: ev.StageCounts) -> pd.Series:
+    """``ms_compute_per_frame`` (ms) of the judged rows ``frames`` (their axes filled:
+    :func:`~experiments.identity.with_neutral_axes`), looked up in ``counts``, the computed
+    stage times of every row of the sweeps (:func:`ttc.evaluation.compute_times`), whose axes
+    are filled here alike."""
+    filled = {name: with_neutral_axes(table) for name, table in counts.items()}
+    return ev.compute_times(frames[[c for c in TIME_COLUMNS if c in frames]], filled)

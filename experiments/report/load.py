@@ -24,11 +24,16 @@ from experiments.data.first_run import ensure_model_files
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
 from experiments.report import judged_rows
+from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.model_files import uses_bundled_files
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
+
+#: Run record fields no report reads, left out of :attr:`SweepData.runs`: the identities of a
+#: run's input files, which the completeness check compares (3.7 kB of a record's 6.6 kB).
+UNREAD_RECORD_FIELDS: tuple[str, ...] = ("inputs",)
 
 
 @dataclass
@@ -37,7 +42,8 @@ class SweepData:
     the rows a report judges, each frame pair's lead row (else its first row) of every run,
     every column, with ``ms_compute_per_frame`` (:mod:`experiments.report.judged_rows`); ``boxes``:
     the matched box pairs of one run per camera setting and recording (the "every object"
-    report), on :data:`~experiments.report.judged_rows.BOX_COLUMNS`."""
+    report), on :data:`~experiments.report.judged_rows.BOX_COLUMNS`; ``runs``: the run
+    records but :data:`UNREAD_RECORD_FIELDS`."""
 
     dirs: list[Path]
     frames: pd.DataFrame
@@ -75,32 +81,33 @@ def _concat(parts: list[pd.DataFrame]) -> pd.DataFrame:
 def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
     judged rows get ``ms_compute_per_frame`` looked up over every row of all of them
-    (:func:`ttc.evaluation.with_compute_times`). Bounded memory: the rows are read a fragment
-    at a time and cut at once (:func:`experiments.report.judged_rows.read_rows`)."""
+    (:func:`ttc.evaluation.compute_times`, from the stage times counted). Bounded memory: the
+    rows are read a fragment at a time and cut at once, to the judged rows, the box pairs of a
+    few runs and the counts (:func:`experiments.report.judged_rows.read_rows`)."""
     dirs = [Path(d) for d in dirs]
-    lead_parts, box_parts, time_parts, run_parts, overrides = [], [], [], [], {}
+    lead_parts, box_parts, counts, run_parts, overrides = [], [], [], [], {}
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
-        parts, runs = store.scan_sweep(d)
+        parts, runs = store.scan_sweep(d, exclude=UNREAD_RECORD_FIELDS)
         if runs.empty:
             continue
         known = runs["run_id"].isin(seen)
         repeated += int(known.sum())
         runs = runs[~known].assign(sweep_dir=str(d.resolve()))
-        lead, boxes, times = judged_rows.read_rows(parts, runs)
+        lead, boxes, sweep_counts = judged_rows.read_rows(parts, runs)
         if not lead.empty:
             lead_parts.append(lead)
             box_parts.append(boxes)
-            time_parts.append(times)
+            counts.append(sweep_counts)
         run_parts.append(runs)
         seen |= set(runs["run_id"])
         overrides[d.name] = sweep_overrides(d)
     frames, boxes, runs = _concat(lead_parts), _concat(box_parts), _concat(run_parts)
     frames, runs = with_neutral_axes(frames), with_neutral_axes(runs)  # axes added since
     if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
-        times = time_parts[0] if len(time_parts) == 1 else _concat(time_parts)
-        frames["ms_compute_per_frame"] = judged_rows.compute_times(times).to_numpy()
+        times = judged_rows.compute_times(frames, ev.join_counts(counts))
+        frames["ms_compute_per_frame"] = times.to_numpy()
     return SweepData(dirs, frames, runs, overrides, repeated, boxes)
 
 
@@ -118,6 +125,10 @@ def setting_of_run(runs: pd.DataFrame, run_id: str, root: Path) -> tuple[Setting
     return settings_from_config(cfg), frame_range_from_config(cfg)
 
 
+#: Pair details a :class:`Context` keeps (``grand`` 0–18's report asks for 71, each with its two images).
+DETAILS_KEPT = 16
+
+
 @dataclass
 class Context:
     """What a report needs besides the sweep tables: data root, stage cache, pair details
@@ -132,15 +143,20 @@ class Context:
     def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
         """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised); the first
         one that needs the YOLOv3-tiny files finds them as the sweep did
-        (:func:`experiments.data.first_run.ensure_model_files`)."""
+        (:func:`experiments.data.first_run.ensure_model_files`). The :data:`DETAILS_KEPT` most
+        recently used are kept (a report asks for a pair again soon after, if at all)."""
         key = (run_id, prev, curr)
-        if key not in self.details:
-            settings, frames = setting_of_run(runs, run_id, self.root)
-            if not self.models_found and uses_bundled_files(settings.objects):
-                ensure_model_files()
-                self.models_found = True
-            self.details[key] = pair_detail(settings, frames, prev, curr, self.cache)
-            self.calls += 1
+        if key in self.details:
+            self.details[key] = self.details.pop(key)  # the most recently used last
+            return self.details[key]
+        settings, frames = setting_of_run(runs, run_id, self.root)
+        if not self.models_found and uses_bundled_files(settings.objects):
+            ensure_model_files()
+            self.models_found = True
+        self.details[key] = pair_detail(settings, frames, prev, curr, self.cache)
+        self.calls += 1
+        while len(self.details) > DETAILS_KEPT:  # each holds two images: a few MB
+            del self.details[next(iter(self.details))]
         return self.details[key]
 
     def settings(self, runs: pd.DataFrame, run_id: str) -> Settings:

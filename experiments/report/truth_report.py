@@ -31,7 +31,7 @@ def write_sweep_tables(data: SweepData, reference: pd.DataFrame) -> list[Path]:
     written = []
     for d in data.dirs:
         runs = data.runs[data.runs["sweep_dir"] == str(d.resolve())]
-        frames = data.frames[data.frames["run_id"].isin(runs["run_id"])]
+        frames = ev.rows_of_runs(data.frames, runs["run_id"])
         if runs.empty or frames.empty:
             continue
         metrics = ev.sweep_metrics(frames, runs, reference)

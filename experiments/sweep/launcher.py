@@ -42,6 +42,7 @@ from hydra_plugins.hydra_joblib_launcher.joblib_launcher import JoblibLauncher
 from joblib import Parallel, delayed, effective_n_jobs
 from joblib.externals.loky import ProcessPoolExecutor
 from joblib.externals.loky.backend import resource_tracker as loky_resource_tracker
+from joblib.externals.loky.backend.context import get_start_method as loky_start_method
 from joblib.externals.loky.process_executor import TerminatedWorkerError
 from omegaconf import DictConfig, open_dict
 
@@ -57,6 +58,7 @@ from experiments.sweep.workers import (
     sweep_payload,
     warm,
     worker_death,
+    worker_environ,
 )
 
 log = logging.getLogger(__name__)
@@ -94,7 +96,9 @@ class SweepLauncher(JoblibLauncher):
             assert self.hydra_context is not None and self.config is not None
             self._payload = sweep_payload(self.hydra_context, self.config, self.task_function)
         key, payload = self._payload
-        return SweepState(key, payload, str(started), *self._shared)
+        forked = loky_start_method() == "forkserver"  # experiments.warm.forks
+        environ = worker_environ(joblib_options(self.joblib).get("n_jobs")) if forked else ()
+        return SweepState(key, payload, str(started), *self._shared, environ=environ)
 
     def share_compositions(self, composer: Composer) -> None:
         """Hand over the sweeper's composer state (made from this launcher's master config):

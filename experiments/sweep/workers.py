@@ -17,6 +17,7 @@ that limit in each worker to :data:`WORKER_GROWTH_BYTES`.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib
 import os
@@ -54,7 +55,9 @@ class SweepState:
 
     ``payload``: (Hydra context, master config, task function, singletons); ``shared``:
     the sweeper's :meth:`Composer.shared` (compositions, template, earlier plan), or empty;
-    ``started``: the folder of the running jobs' markers.
+    ``started``: the folder of the running jobs' markers; ``environ``: for workers forked
+    from a process made before the sweep set its environment (:mod:`experiments.warm.forks`),
+    the environment a freshly started worker would have (:func:`worker_environ`), else empty.
     """
 
     key: str
@@ -62,6 +65,7 @@ class SweepState:
     started: str
     shared_key: str = ""
     shared: bytes = b""
+    environ: tuple[tuple[str, str], ...] = ()
 
 
 def pickled(value: Any) -> tuple[str, bytes]:
@@ -79,9 +83,29 @@ def sweep_payload(hydra_context: Any, config: DictConfig, task_function: Any) ->
 _WORKER: dict[str, Any] = {}
 
 
+def worker_environ(n_jobs: int | None) -> tuple[tuple[str, str], ...]:
+    """The environment loky gives a worker it starts: this process's, with joblib's limits
+    of the native thread pools (OpenMP, BLAS: cores / workers) unless already set."""
+    from joblib._parallel_backends import LokyBackend  # noqa: PLC0415
+
+    limits = LokyBackend()._prepare_worker_env(n_jobs=effective_n_jobs(n_jobs))
+    return tuple({**os.environ, **limits}.items())
+
+
+def take_environ(environ: tuple[tuple[str, str], ...]) -> None:
+    """In a forked worker: take the sweep's environment and apply its thread limits to the
+    native thread pools already loaded (a fresh worker reads them when it loads them)."""
+    os.environ.clear()
+    os.environ.update(dict(environ))
+    from threadpoolctl import threadpool_limits  # noqa: PLC0415
+
+    with contextlib.suppress(KeyError, ValueError):
+        threadpool_limits(limits=int(os.environ["OMP_NUM_THREADS"]))
+
+
 def worker_state(state: SweepState) -> dict[str, Any]:
     """This worker's restored sweep state (Hydra context, master, task function, composer),
-    restored when ``state`` is another sweep's."""
+    restored when ``state`` is another sweep's; a forked worker takes its environment."""
     if _WORKER.get("key") != state.key:
         hydra_context, master, task_function, singletons = pickle.loads(state.payload)
         setup_globals()
@@ -89,6 +113,9 @@ def worker_state(state: SweepState) -> dict[str, Any]:
         _WORKER.clear()
         _WORKER.update(key=state.key, hydra_context=hydra_context, master=master,
                        task_function=task_function)  # fmt: skip
+    if state.environ and _WORKER.get("environ") != state.environ:
+        take_environ(state.environ)
+        _WORKER["environ"] = state.environ
     if _WORKER.get("shared_key") != state.shared_key or "composer" not in _WORKER:
         shared = pickle.loads(state.shared) if state.shared else ()
         loader = _WORKER["hydra_context"].config_loader

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import socket
 import subprocess
 import sys
 import threading
@@ -41,14 +42,54 @@ def _timed_command(
     return wall, subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
+#: Idle timeout (s) of the benchmark's warm server: it ends soon after the benchmark.
+SERVER_IDLE_S = "30"
+#: Seconds to wait for a started warm server to answer.
+SERVER_START_S = 120.0
+
+
+def sweep_env(results: Path, cache: Path, served: bool) -> dict[str, str]:
+    """The environment of a timed sweep: its results and cache folders, and the warm server
+    (:mod:`experiments.warm`) on with a short idle timeout when ``served``, else off."""
+    server = {"TTC_BENCH_SERVER": "1", "TTC_BENCH_SERVER_IDLE_S": SERVER_IDLE_S} if served else {
+        "TTC_BENCH_SERVER": "0"}  # fmt: skip
+    return {**os.environ, "TTC_RESULTS_DIR": str(results), "TTC_CACHE_DIR": str(cache), **server}
+
+
+def start_warm_server(env: dict[str, str]) -> None:
+    """Start the warm server of ``env`` (``python -m experiments.warm.client``, from the
+    project folder as the timed commands) and wait until it answers: its start-up (the
+    stack's imports) is not part of the command timed after it."""
+    out = subprocess.run([sys.executable, "-m", "experiments.warm.client"], cwd=base_dir(),
+                         env=env, capture_output=True, text=True, check=True)  # fmt: skip
+    path = out.stdout.strip()
+    if path in ("", "None"):
+        raise RuntimeError(f"the warm server is off or cannot start: {out.stderr[-2000:]}")
+    deadline = time.monotonic() + SERVER_START_S
+    while time.monotonic() < deadline:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+            try:
+                probe.connect(path)
+                return
+            except OSError:
+                time.sleep(0.2)
+    raise RuntimeError(f"the warm server at {path} did not answer in {SERVER_START_S:.0f} s")
+
+
 def timed_sweep(
-    args: list[str], results: Path, cache: Path, memory: dict | None = None
+    args: list[str], results: Path, cache: Path, memory: dict | None = None, served: bool = False
 ) -> tuple[float, pd.DataFrame]:
     """Run one sweep through the real command line; (wall seconds, its runs table).
-    ``memory``: as :func:`_timed_command`'s."""
-    env = {**os.environ, "TTC_RESULTS_DIR": str(results), "TTC_CACHE_DIR": str(cache)}
+    ``served``: as a user's ``ttc-bench run`` with its warm server up (started before, not
+    timed); else ``python -m experiments.run`` alone. ``memory``: as
+    :func:`_timed_command`'s (the processes under the command: not the server's when served)."""
+    env = sweep_env(results, cache, served)
+    command = ["-m", "experiments.run", *args]
+    if served:
+        start_warm_server(env)
+        command = ["-m", "experiments.cli", "run", *args]
     started = time.time()
-    wall, proc = _timed_command(["-m", "experiments.run", *args], env, memory)
+    wall, proc = _timed_command(command, env, memory)
     if proc.returncode != 0:
         raise RuntimeError(f"sweep {args} failed:\n{proc.stderr[-4000:]}")
     name = next(a.split("=", 1)[1] for a in args if a.startswith("sweep_name="))

@@ -4,7 +4,7 @@ the pure-Python share.
 The pure-Python share of a frame is everything the pipeline does besides the OpenCV calls:
 with every expensive stage in a warm cache, one frame pair costs the cache loads, the lidar
 projection/assignment and FP.1–FP.4 for every matched box. Run with
-``pytest tests/benchmarks --benchmark-only``.
+``pytest tests/benchmarks --benchmark-only -n 0``.
 """
 
 from __future__ import annotations

@@ -85,19 +85,16 @@ from ttc.evaluation.drives import (
     stack_drives,
 )
 from ttc.evaluation.errors import (
-    CACHED_STAGE_INPUTS,
     FALSE_ALARM_S,
     NOT_JUDGED_COLUMNS,
     OUTLIER_REL,
     SENSORS,
     WARNING_TTC_S,
     attach_reference,
-    computed_stage_times,
     frame_errors,
     lead_rows,
     mid_error,
-    stage_time_columns,
-    with_compute_times,
+    rows_of_runs,
 )
 from ttc.evaluation.families import FAMILIES, against_best_classic, family_of, verdict_sentence
 from ttc.evaluation.lead import box_points, lead_box_of, lead_boxes, lead_clouds, lead_row
@@ -154,6 +151,15 @@ from ttc.evaluation.reference import (
     reference_ttc,
 )
 from ttc.evaluation.run_comparison import COMPARED_METRICS, compare_runs
+from ttc.evaluation.stage_times import (
+    CACHED_STAGE_INPUTS,
+    StageCounts,
+    compute_times,
+    join_counts,
+    stage_time_columns,
+    stage_time_counts,
+    with_compute_times,
+)
 from ttc.evaluation.transfer import (
     best_elsewhere,
     recording_agreement,
@@ -228,7 +234,11 @@ __all__ = [
     "reference_ttc",
     "run_metrics",
     "with_compute_times",
-    "computed_stage_times",
+    "rows_of_runs",
+    "compute_times",
+    "join_counts",
+    "StageCounts",
+    "stage_time_counts",
     "CI",
     "N_BOOT",
     "MAX_REF_REL_SD",

@@ -25,6 +25,7 @@ from ttc.evaluation.diagnosis import (
     setting_labels,
     with_reasons,
 )
+from ttc.evaluation.errors import rows_of_runs
 from ttc.evaluation.metrics import run_metrics
 from ttc.evaluation.ranking import rank_runs
 from ttc.features.keypoints import X, Y
@@ -266,7 +267,7 @@ def camera_ranking(
     parts = []
     for _, group in t.groupby("dataset", sort=True):
         ids = group["run_id"].unique()
-        subset = frames[frames["run_id"].isin(ids)]
+        subset = rows_of_runs(frames, ids)
         ranked = rank_runs(run_metrics(subset, reference), "camera")
         ci = bootstrap_rank_intervals(subset, reference, n_boot=n_boot, seed=0)
         parts.append(ranked.merge(ci.drop(columns="rank"), on="run_id"))

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from ttc import reasons
-from ttc.evaluation.errors import attach_reference, frame_errors
+from ttc.evaluation.errors import attach_reference, frame_errors, rows_of_runs
 from ttc.evaluation.metrics import run_metrics
 from ttc.settings import AXES
 
@@ -115,7 +115,7 @@ def judged_rows(frames: pd.DataFrame, reference: pd.DataFrame, run_ids) -> pd.Da
     """Lead rows of the runs ``run_ids`` of ``frames`` with the reference attached and the
     per-frame errors (:func:`~ttc.evaluation.attach_reference`,
     :func:`~ttc.evaluation.frame_errors`)."""
-    subset = frames[frames["run_id"].isin(set(run_ids))]
+    subset = rows_of_runs(frames, run_ids)
     return frame_errors(attach_reference(subset, reference))
 
 

@@ -28,10 +28,11 @@ Time: ``ms_per_frame`` is the sum of the lead row's stage times (:func:`stage_ti
 ms). Stages that came from the stage cache count their cache-load time, so it is the time
 this run took, which depends on what ran before it. ``ms_compute_per_frame`` replaces a
 cached stage's time by the median time of the same stage computed (not cached) on the same
-frame by any run of the table with the same stage inputs (:data:`CACHED_STAGE_INPUTS`),
-else on any frame; a stage that no run of the table computed keeps its load time (the objects
-and lane points a sweep's warm-up fills while the sweep is planned: the same entries for
-every setting of the sweep, so they shift every setting's time alike and leave the order).
+frame by any run of the table with the same stage inputs
+(:data:`~ttc.evaluation.stage_times.CACHED_STAGE_INPUTS`), else on any frame; a stage that
+no run of the table computed keeps its load time (the objects and lane points a sweep's
+warm-up fills while the sweep is planned: the same entries for every setting of the sweep, so
+they shift every setting's time alike and leave the order; :mod:`ttc.evaluation.stage_times`).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from ttc.evaluation.reference import MID_SCALE, two_frame_ttc
-from ttc.settings import CACHED_STAGES
+from ttc.evaluation.stage_times import compute_times, stage_time_columns, stage_time_counts
 
 #: The estimates judged: camera (FP.4), lidar (FP.2) and their Kalman fusion (FP.7,
 #: ``ttc_fused`` / ``fused_ratio``, present in sweeps made since the ``fusion`` axis exists).
@@ -53,8 +54,6 @@ OUTLIER_REL = 0.3
 FALSE_ALARM_S = 10.0
 #: Collision-warning threshold τ (s): "TTC below τ" is a warning.
 WARNING_TTC_S = 8.0
-#: Time columns derived from the stage times, never summed into them.
-DERIVED_TIME_COLUMNS: tuple[str, ...] = ("ms_per_frame", "ms_compute_per_frame")
 #: Columns of a sweep's rows that no metric reads (provenance and per-pair diagnostics of
 #: the FP.5/FP.6 reports): a summary of a sweep of millions of rows leaves them unread.
 NOT_JUDGED_COLUMNS: tuple[str, ...] = (
@@ -75,21 +74,18 @@ REFERENCE_COLUMNS: tuple[str, ...] = (
     "regime",
 )
 
-#: Cached stage → (time column, cache flag column, axes its cache key depends on besides the
-#: frame), from :data:`ttc.settings.CACHED_STAGES`.
-CACHED_STAGE_INPUTS: dict[str, tuple[str, str, tuple[str, ...]]] = {
-    s.name: (s.time_column, s.cached_column, s.axes) for s in CACHED_STAGES
-}
-
 
 def sensors_of(table: pd.DataFrame) -> tuple[str, ...]:
     """The :data:`SENSORS` whose TTC column ``ttc_{s}`` the table has."""
     return tuple(s for s in SENSORS if f"ttc_{s}" in table)
 
 
-def stage_time_columns(frames: pd.DataFrame) -> list[str]:
-    """The per-stage time columns (``ms_*``, ms) of ``frames``: not the derived totals."""
-    return [c for c in frames.columns if c.startswith("ms_") and c not in DERIVED_TIME_COLUMNS]
+def rows_of_runs(frames: pd.DataFrame, run_ids) -> pd.DataFrame:
+    """The rows of ``frames`` whose ``run_id`` is in ``run_ids``, index kept: ``frames``
+    itself when that is every row (a shallow copy, pandas copies on write: a report's
+    judged rows are not copied whole for a selection of all of them)."""
+    mask = frames["run_id"].isin(set(run_ids)).to_numpy()
+    return frames.copy(deep=False) if mask.all() else frames[mask]
 
 
 def lead_rows(frames: pd.DataFrame) -> pd.DataFrame:
@@ -179,71 +175,12 @@ def mid_error(ratio: np.ndarray, ratio_ref: np.ndarray) -> np.ndarray:
     return out
 
 
-def _stage_medians(
-    lead: pd.DataFrame, stage: str, own: pd.Series, elsewhere: pd.DataFrame | None
-) -> pd.Series:
-    """Per row of ``lead``: the median computed time (ms) of ``stage`` with the row's stage
-    inputs on the row's frame, else on any frame, over ``own`` (the rows' computed times, NaN
-    where cached) and the counted times of rows judged elsewhere
-    (:func:`computed_stage_times`)."""
-    _, _, inputs = CACHED_STAGE_INPUTS[stage]
-    keys = [c for c in inputs if c in lead]
-    table = pd.DataFrame({**{c: lead[c] for c in keys}, "frame": lead["frame"], "own": own})
-    more = None if elsewhere is None else elsewhere[elsewhere["stage"] == stage]
-    if more is not None and len(more):  # the same multisets as the rows of every fragment
-        extra = more.loc[more.index.repeat(more["count"]), [*keys, "frame", "ms"]]
-        extra = extra.astype({"frame": lead["frame"].dtype})
-        table = pd.concat([table, extra.rename(columns={"ms": "own"})], ignore_index=True)
-    group = [table[c] for c in keys]
-    same_frame = table["own"].groupby([*group, table["frame"]]).transform("median")
-    any_frame = table["own"].groupby(group).transform("median") if keys else table["own"].median()
-    computed = same_frame.fillna(any_frame).iloc[: len(lead)]
-    return pd.Series(computed.to_numpy(), index=lead.index)
-
-
-def _compute_times(lead: pd.DataFrame, elsewhere: pd.DataFrame | None = None) -> pd.Series:
-    """Per-row ``ms_per_frame`` with cached stages' times replaced by computed ones (ms): the
-    median computing time of the same stage inputs on the same frame, else on any frame, else
-    (no run of ``lead`` or ``elsewhere`` computed it) the load time."""
-    if "ms_compute_per_frame" in lead:  # looked up beforehand (:func:`with_compute_times`)
+def _compute_times(lead: pd.DataFrame) -> pd.Series:
+    """Per-row ``ms_compute_per_frame`` (ms): looked up beforehand
+    (:func:`~ttc.evaluation.stage_times.with_compute_times`), else over ``lead`` itself."""
+    if "ms_compute_per_frame" in lead:
         return lead["ms_compute_per_frame"]
-    total = lead[stage_time_columns(lead)].sum(axis=1)
-    for stage, (ms, flag, _) in CACHED_STAGE_INPUTS.items():
-        if ms not in lead or flag not in lead:
-            continue
-        cached = lead[flag].astype(bool)
-        computed = _stage_medians(lead, stage, lead[ms].where(~cached), elsewhere)
-        total = total + (computed - lead[ms]).where(cached & computed.notna(), 0.0)
-    return total
-
-
-def computed_stage_times(lead: pd.DataFrame) -> pd.DataFrame:
-    """The computed (not cached) times of each cached stage in ``lead``, counted: one row per
-    ``stage``, value of its input axes (:data:`CACHED_STAGE_INPUTS`; None where not the
-    stage's), ``frame`` and ``ms``, with ``count`` (rows): what :func:`with_compute_times`
-    needs of rows judged elsewhere."""
-    axes = sorted({c for _, _, inputs in CACHED_STAGE_INPUTS.values() for c in inputs})
-    parts = []
-    for stage, (ms, flag, inputs) in CACHED_STAGE_INPUTS.items():
-        if ms not in lead or flag not in lead:
-            continue
-        keys = [c for c in inputs if c in lead]
-        done = lead.loc[~lead[flag].astype(bool) & lead[ms].notna(), [*keys, "frame", ms]]
-        counted = done.rename(columns={ms: "ms"}).value_counts(dropna=False).rename("count")
-        parts.append(counted.reset_index().assign(stage=stage))
-    columns = ["stage", *axes, "frame", "ms", "count"]
-    if not parts:
-        return pd.DataFrame(columns=columns)
-    return pd.concat(parts, ignore_index=True).reindex(columns=columns)
-
-
-def with_compute_times(frames: pd.DataFrame, elsewhere: pd.DataFrame | None = None) -> pd.DataFrame:
-    """``frames`` with ``ms_compute_per_frame`` per row, the cached stages' computing times
-    looked up over every row of ``frames`` and the rows ``elsewhere`` counts
-    (:func:`computed_stage_times` of rows judged apart, e.g. the other fragments of a sweep).
-    Call it on the union of sweeps before judging a subset of runs, so a stage computed by a
-    run outside the subset still has its time."""
-    return frames.assign(ms_compute_per_frame=_compute_times(frames, elsewhere))
+    return compute_times(lead, stage_time_counts(lead))
 
 
 def frame_errors(
@@ -256,8 +193,9 @@ def frame_errors(
     ``{s}_invalid`` (bool), ``{s}_mid``, ``{s}_rel_err``, ``{s}_outlier`` and
     ``{s}_false_alarm`` (1.0/0.0, NaN where not applicable), ``{s}_warns`` (bool); and
     ``ref_warns``, ``ms_per_frame``, ``ms_compute_per_frame`` (ms). Definitions in the module
-    docstring; ``outlier_rel`` a fraction, ``false_alarm_s`` and ``warning_s`` seconds."""
-    out = lead.copy()
+    docstring; ``outlier_rel`` a fraction, ``false_alarm_s`` and ``warning_s`` seconds.
+    ``lead`` is left as it is (pandas copies on write: its columns are not copied here)."""
+    out = lead.copy(deep=False)
     ref = out["ttc_ref_s"].to_numpy(dtype=float)
     judged = out["judgeable"].to_numpy(dtype=bool) & np.isfinite(ref) & (ref > 0)
     no_course = np.isposinf(ref)

@@ -33,7 +33,7 @@ from ttc.evaluation.diagnosis import (
     setting_labels,
     with_reasons,
 )
-from ttc.evaluation.errors import OUTLIER_REL
+from ttc.evaluation.errors import OUTLIER_REL, rows_of_runs
 from ttc.evaluation.metrics import run_metrics
 from ttc.evaluation.ranking import rank_runs
 from ttc.steps import fusion
@@ -154,7 +154,7 @@ def fusion_vs_inputs(
     beaten). Sorted by fused rank."""
     if t.empty:
         return pd.DataFrame()
-    subset = frames[frames["run_id"].isin(set(t["run_id"]))]
+    subset = rows_of_runs(frames, t["run_id"])
     ranked = rank_runs(run_metrics(subset, reference), "fused")
     labels = t.drop_duplicates("run_id").set_index("run_id")["setting"]
     columns = [f"{s}_{m}" for s in ("fused", "lidar", "camera") for m in COMPARED]

@@ -23,6 +23,7 @@ from ttc.evaluation.diagnosis import (
     setting_key,
     with_reasons,
 )
+from ttc.evaluation.errors import rows_of_runs
 from ttc.evaluation.lead_distance import euclidean_clusters
 from ttc.evaluation.metrics import run_metrics
 from ttc.steps.lidar_ttc import LIDAR_ESTIMATORS, LidarTTCParams
@@ -345,7 +346,7 @@ def lidar_metrics(frames: pd.DataFrame, t: pd.DataFrame, reference: pd.DataFrame
     """Per (dataset, estimator): lidar metrics of the run :func:`lidar_runs` chose and its
     number of flagged frames."""
     ids = t["run_id"].unique()
-    m = run_metrics(frames[frames["run_id"].isin(ids)], reference)
+    m = run_metrics(rows_of_runs(frames, ids), reference)
     cols = ["dataset", "lidar_ttc", "lidar_invalid_rate", "lidar_mid_median",
             "lidar_mid_median_approach", "lidar_mid_median_stopping",
             "lidar_mid_median_stationary", "lidar_outlier_rate", "lidar_medae_rel",

@@ -27,14 +27,15 @@ import pandas as pd
 
 from ttc.evaluation.errors import (
     FALSE_ALARM_S,
+    NOT_JUDGED_COLUMNS,
     OUTLIER_REL,
     WARNING_TTC_S,
     attach_reference,
     frame_errors,
     sensors_of,
-    stage_time_columns,
 )
 from ttc.evaluation.reference import REGIMES
+from ttc.evaluation.stage_times import stage_time_columns
 from ttc.settings import AXES
 
 
@@ -105,6 +106,7 @@ def run_metrics(
     ``outlier_rel`` is a fraction of the reference, ``false_alarm_s`` and ``warning_s``
     seconds.
     """
+    frames = frames.drop(columns=[c for c in NOT_JUDGED_COLUMNS if c in frames])  # no copy
     t = judged_frames(frames, reference, outlier_rel, false_alarm_s, warning_s)
     runs = t["run_id"]
     parts = [_sensor_metrics(t, s) for s in sensors_of(t)]
