@@ -46,6 +46,7 @@ from experiments.store.completeness import (
     run_lock,
 )
 from experiments.store.dataset import (
+    UNREAD_RECORD_FIELDS,
     fragments,
     load_runs,
     load_sweep,
@@ -81,6 +82,7 @@ RECORDS_GLOB = f"{RUNS_DIR}/*.json"
 
 __all__ = [
     "scan_sweep",
+    "UNREAD_RECORD_FIELDS",
     "RUNS_DIR",
     "ROWS_GLOB",
     "RECORDS_GLOB",
