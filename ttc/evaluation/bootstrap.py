@@ -24,9 +24,8 @@ import numpy as np
 import pandas as pd
 
 from ttc.evaluation.errors import NOT_JUDGED_COLUMNS
-from ttc.evaluation.metrics import judged_frames, run_metrics
+from ttc.evaluation.metrics import judged_frames, run_metrics, unread_axes
 from ttc.evaluation.ranking import rank_runs, ranking_time, ranks
-from ttc.settings import AXES
 
 #: Replicates, confidence level and seed of the reports' rank intervals.
 N_BOOT = 500
@@ -192,7 +191,7 @@ def bootstrap_rank_intervals(
     ``metrics``: that :func:`~ttc.evaluation.metrics.run_metrics` of ``frames`` (with the same
     thresholds) when the caller has it, for the point ranks (else computed here).
     """
-    unread = [c for c in (*AXES, *NOT_JUDGED_COLUMNS) if c in frames]  # told apart by run id
+    unread = [*unread_axes(frames), *(c for c in NOT_JUDGED_COLUMNS if c in frames)]
     t = judged_frames(frames.drop(columns=unread), reference, **thresholds)
     t["ms_rank"] = ranking_time(t)
     t[f"{sensor}_approach_rel_err"] = t[f"{sensor}_rel_err"].where(t["regime"] == "approach")

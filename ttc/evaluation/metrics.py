@@ -94,6 +94,14 @@ def _sensor_metrics(t: pd.DataFrame, s: str) -> pd.DataFrame:
     return out
 
 
+def unread_axes(frames: pd.DataFrame) -> list[str]:
+    """The axis columns of ``frames`` that judging them does not read, left out of the copies
+    it makes (12 strings a row: 0.1 GB a copy of ``grand``'s judged rows): all of them once
+    ``ms_compute_per_frame`` is known, none without it (the computing times are then looked up
+    by the stage axes, :func:`ttc.evaluation.stage_times.compute_times`)."""
+    return [a for a in AXES if a in frames] if "ms_compute_per_frame" in frames else []
+
+
 def run_metrics(
     frames: pd.DataFrame,
     reference: pd.DataFrame,
@@ -107,10 +115,9 @@ def run_metrics(
     seconds.
     """
     frames = frames.drop(columns=[c for c in NOT_JUDGED_COLUMNS if c in frames])  # no copy
-    axis_columns = [a for a in AXES if a in frames]  # a run's axes: taken from its rows, not
-    # copied through the judging (12 string columns: 0.1 GB a copy of grand's judged rows)
-    t = judged_frames(frames.drop(columns=axis_columns), reference, outlier_rel, false_alarm_s,
-                      warning_s)  # fmt: skip
+    axis_columns = [a for a in AXES if a in frames]  # a run's axes: taken from its rows
+    t = judged_frames(frames.drop(columns=unread_axes(frames)), reference, outlier_rel,
+                      false_alarm_s, warning_s)  # fmt: skip
     runs = t["run_id"]
     parts = [_sensor_metrics(t, s) for s in sensors_of(t)]
     finite_ref = np.isfinite(t["ttc_ref_s"]) & (t["ttc_ref_s"] > 0)
