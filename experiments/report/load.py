@@ -34,10 +34,6 @@ from ttc.features.model_files import uses_bundled_files
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
 
-#: Run record fields no report reads, left out of :attr:`SweepData.runs`: the identities of a
-#: run's input files, which the completeness check compares (3.7 kB of a record's 6.6 kB).
-UNREAD_RECORD_FIELDS: tuple[str, ...] = ("inputs",)
-
 
 @dataclass
 class SweepData:
@@ -47,7 +43,7 @@ class SweepData:
     ``cached_*``), with ``ms_compute_per_frame`` (:mod:`experiments.report.judged_rows`); ``boxes``:
     the matched box pairs of one run per camera setting and recording (the "every object"
     report), on :data:`~experiments.report.judged_rows.BOX_COLUMNS`; ``runs``: the run
-    records but :data:`UNREAD_RECORD_FIELDS`."""
+    records but :data:`experiments.store.UNREAD_RECORD_FIELDS`."""
 
     dirs: list[Path]
     frames: pd.DataFrame
@@ -93,7 +89,9 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
-        parts, runs = store.scan_sweep(d, judged_rows.read_columns(), exclude=UNREAD_RECORD_FIELDS)
+        parts, runs = store.scan_sweep(
+            d, judged_rows.read_columns(), exclude=store.UNREAD_RECORD_FIELDS
+        )
         if runs.empty:
             continue
         known = runs["run_id"].isin(seen)
