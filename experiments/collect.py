@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments import lead_cache, progress, store
+from experiments import progress, store
 from experiments.lead_cache import lead_rows
 from experiments.paths import shown
 from experiments.sweep.finished import nothing_computed_line, summary_head
@@ -46,14 +46,7 @@ def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame, sensor: str) -> p
     (rates are fractions, MiD in 10⁻⁴ of the log distance ratio, time in ms)."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
-    return rank_metrics(ev.run_metrics(frames, reference), sensor)
-
-
-def rank_metrics(metrics: pd.DataFrame, sensor: str) -> pd.DataFrame:
-    """:func:`ranked_runs` from the runs' metrics (:func:`ttc.evaluation.run_metrics`)."""
-    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
-
-    ranked = ev.rank_runs(metrics, sensor)
+    ranked = ev.rank_runs(ev.run_metrics(frames, reference), sensor)
     columns = [*summary_columns(sensor), "ms_per_frame"]
     return ranked[[c for c in columns if c in ranked]]
 
@@ -69,15 +62,11 @@ def summary_columns(sensor: str) -> list[str]:
 
 
 def sweep_references(
-    frames: pd.DataFrame | None,
-    runs: pd.DataFrame,
-    data_dir: Path | None,
-    cache_dir: Path | None,
+    frames: pd.DataFrame, runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None
 ) -> dict[str, pd.DataFrame] | None:
     """What the ok runs of each recording are judged against
-    (:func:`experiments.reference_store.recording_references`; ``frames`` None: rows without
-    a truth), or None (with the reason printed) when it cannot be built, e.g. the data root
-    is gone."""
+    (:func:`experiments.reference_store.recording_references`), or None (with the reason
+    printed) when it cannot be built, e.g. the data root is gone."""
     from experiments.reference_store import recording_references  # noqa: PLC0415 (SciPy)
     from ttc.engine.cache import StageCache  # noqa: PLC0415
 
@@ -121,15 +110,15 @@ def summarise_sweep(
     or corrupt rows file. ``data_dir`` / ``cache_dir``: None for the configured defaults.
 
     Nothing is merged or written (the store is append-only); temporary files of killed jobs
-    are removed. A sweep of one real recording is ranked from its runs' metrics, computed a
-    fragment at a time and kept, so a later summary computes only its new fragments'
-    (:func:`experiments.lead_cache.run_metrics`); others from the lead rows (the ranking's
-    rows, kept per fragment: :func:`experiments.lead_cache.lead_rows`). ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be
+    are removed. Only the lead rows are loaded
+    (the ranking's rows), so a sweep of millions of rows is summarised without loading it
+    whole, and those of the fragments an earlier summary read are kept
+    (:mod:`experiments.lead_cache`). ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be
     the one printed before)."""
     sweep_dir = Path(sweep_dir)
     remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
     records = store.list_records(sweep_dir)
-    runs = store.runs_table(records, exclude=store.UNREAD_RECORD_FIELDS)  # long texts
+    runs = store.runs_table(records)
     n_rows = store.row_count(records)
     folder = progress.progress_dir(sweep_dir)
     outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None
@@ -144,12 +133,11 @@ def summarise_sweep(
     if unchanged:
         print(nothing_computed_line(sweep_dir))
         return pd.DataFrame()
-    if not n_rows:
+    frames = lead_rows(sweep_dir, records) if n_rows else pd.DataFrame()
+    if frames.empty:
         return pd.DataFrame()
     try:
-        tables, kind = _best(sweep_dir, records, runs, data_dir, cache_dir)
-    except (store.StoreError, OSError):  # a damaged rows file: the caller names it
-        raise
+        tables = _best(frames, runs, data_dir, cache_dir)
     except Exception as exc:  # the rows stand; the ranking is the report's job
         print(f"\n(no ranking: {type(exc).__name__}: {exc})")
         return pd.DataFrame()
@@ -160,78 +148,58 @@ def summarise_sweep(
             print(f"\nbest {n} settings {title}:")
             print(scores.head(n).to_string(index=False, float_format="%.3g"))
     name = sweep_dir.name
-    print(f"\nreports ({report_contents(kind, runs)}):\n"
+    print(f"\nreports ({report_contents(frames, runs)}):\n"
           f"  python -m experiments.report {shown(sweep_dir)} --out reports/{name}")  # fmt: skip
     return tables[0][0]
 
 
-def report_contents(kind: str, runs: pd.DataFrame) -> str:
-    """What ``experiments.report`` writes for a sweep of ``kind``
-    (:func:`experiments.recordings.report_kind`), in a few words."""
-    from experiments.recordings import REPORT_CONTENTS  # noqa: PLC0415
+def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
+    """What ``experiments.report`` writes for this sweep, in a few words."""
+    from experiments.recordings import REPORT_CONTENTS, report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
     fused = ", FP.7 fused TTC" if not fused_runs(runs[runs["status"] == "ok"]).empty else ""
-    return REPORT_CONTENTS[kind].format(fused=fused)
+    return REPORT_CONTENTS[report_kind(frames, runs)].format(fused=fused)
 
 
 def _ranked(
-    frames: pd.DataFrame | None,
-    runs: pd.DataFrame,
-    references: dict[str, pd.DataFrame],
-    sensor: str,
-    metrics: pd.DataFrame | None,
+    frames: pd.DataFrame, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
 ) -> pd.DataFrame:
-    """The runs ranked on ``sensor``: from their ``metrics`` against the one recording's
-    reference, from their lead rows ``frames`` against it, or pooled over several recordings
-    (:func:`pooled_runs`)."""
+    """The runs ranked on ``sensor``: against the one recording's reference, or pooled over
+    several (:func:`pooled_runs`)."""
     if len(references) > 1:
         return pooled_runs(frames, runs, references, sensor)
-    if metrics is not None:
-        return rank_metrics(metrics[metrics["run_id"].isin(set(runs["run_id"]))], sensor)
     return ranked_runs(frames, next(iter(references.values())), sensor)
 
 
-def _best(
-    sweep_dir: Path, records: list[dict], runs: pd.DataFrame, data_dir, cache_dir
-) -> tuple[list[tuple], str]:
-    """([(ranked settings, title)], the sweep's report kind) by
-    :data:`ttc.evaluation.RANKING_RULE`: against the reference (pooled over the recordings
-    of a sweep over several), none when no reference can be built; when the sweep is ranked
-    on another sensor and holds runs with a fusion, also those runs ranked on the fused TTC.
-    A sweep of one recording without a truth (rows with no ``ttc_true`` column) is ranked
-    from its kept metrics (:func:`experiments.lead_cache.run_metrics`): no lead rows read."""
-    from experiments.recordings import recording_of, report_kind  # noqa: PLC0415
+def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list[tuple]:
+    """[(ranked settings, title)] by :data:`ttc.evaluation.RANKING_RULE`: against the
+    reference (pooled over the recordings of a sweep over several), none when no reference
+    can be built; when the sweep is ranked on another sensor and holds runs with a fusion,
+    also those runs ranked on the fused TTC."""
+    from experiments.recordings import report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
-    ok = runs[runs["status"] == "ok"]
-    by_metrics = recording_of(ok).nunique() == 1 and "ttc_true" not in (
-        lead_cache.schema_names(sweep_dir, records)
-    )
-    frames = None if by_metrics else lead_rows(sweep_dir, records)
-    kind = "recording" if by_metrics else report_kind(frames, runs)
     references = sweep_references(frames, runs, data_dir, cache_dir)
     if not references:
-        return [], kind
-    metrics = None
-    if by_metrics:
-        metrics = lead_cache.run_metrics(sweep_dir, next(iter(references.values())), records)
+        return []
+    ok = runs[runs["status"] == "ok"]
     sensor = ranked_sensor(ok)
     against = {
         "truth": "the exact truth",
         "drives": f"its recording's reference, pooled over {len(references)} recordings",
         "recording": "the reference",
-    }[kind]
+    }[report_kind(frames, runs)]
     rule = "(ttc.evaluation.RANKING_RULE)"
-    tables = [(_ranked(frames, ok, references, sensor, metrics),
+    tables = [(_ranked(frames, runs, references, sensor),
                f"on the {sensor} TTC against {against} {rule}")]  # fmt: skip
     fused = fused_runs(ok)
     if sensor != "fused" and not fused.empty:
-        mine = None if frames is None else frames[frames["run_id"].isin(set(fused["run_id"]))]
-        tables.append((_ranked(mine, fused, references, "fused", metrics),
+        mine = frames[frames["run_id"].isin(set(fused["run_id"]))]
+        tables.append((_ranked(mine, fused, references, "fused"),
                        f"with a fusion, on the fused TTC {rule} (FP.7: the report's "
                        "fp7_fusion.md)"))  # fmt: skip
-    return tables, kind
+    return tables
 
 
 def main(argv: list[str] | None = None) -> None:

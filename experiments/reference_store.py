@@ -101,7 +101,7 @@ def sequence_reference(sequence_dir: Path | BagSource, cache: StageCache) -> pd.
 
 
 def recording_references(
-    frames: pd.DataFrame | None,
+    frames: pd.DataFrame,
     runs: pd.DataFrame,
     data_dir: Path | None = None,
     cache: StageCache | None = None,
@@ -109,13 +109,12 @@ def recording_references(
     """What the runs of each recording are judged against, by recording (``dataset.sequence``,
     sorted): a generated recording's exact truth (:func:`ttc.evaluation.truth_reference` of
     its runs' ``frames``), else the recording's reference TTC (:func:`sequence_reference`).
-    ``frames`` None: the runs' rows carry no truth (no ``ttc_true`` column). ``data_dir`` /
-    ``cache``: None for the configured data root and stage cache."""
+    ``data_dir`` / ``cache``: None for the configured data root and stage cache."""
     root = Path(data_dir) if data_dir else default_data_root()
     out = {}
     for sequence, ids in run_ids_by_recording(runs).items():
-        mine = None if frames is None else ev.rows_of_runs(frames, ids)
-        if mine is not None and ev.has_truth(mine):
+        mine = ev.rows_of_runs(frames, ids)
+        if ev.has_truth(mine):
             out[sequence] = ev.truth_reference(mine)
             continue
         cache = cache if cache is not None else StageCache(default_cache_dir())

@@ -278,25 +278,3 @@ def test_the_fused_estimate_is_judged_like_the_other_sensors():
     assert ranked["run_id"].tolist() == ["A", "B", "C"]
     # sweeps made before the fusion axis have no fused columns: nothing is made up
     assert "fused_mid_median" not in ev.run_metrics(hand_table(), REFERENCE)
-
-
-def test_computing_times_of_part_of_the_runs_with_the_others_counted_are_the_whole_ones():
-    """A subset of runs looked up in the counted stage times of every run
-    (:func:`ttc.evaluation.join_counts` of each part's :func:`ttc.evaluation.stage_time_counts`,
-    as the end-of-sweep summary keeps them per fragment) gets the computing times it gets
-    among them: B loads the objects A computed and the SIFT keypoints C computed (at 5-9 ms);
-    judged apart from A or C with their times counted, it gets theirs; judged alone, its load
-    times."""
-    table = hand_table()
-    b, c = table["run_id"] == "B", table["run_id"] == "C"
-    table.loc[b, ["detector", "cached_keypoints", "ms_keypoints"]] = ["sift", True, 0.5]
-    table.loc[c, "ms_keypoints"] = [5.0, 9.0, 6.0, 8.0, 7.0]
-    whole = ev.with_compute_times(table)["ms_compute_per_frame"]
-    for apart in (["A"], ["A", "C"], ["C"]):
-        others = table["run_id"].isin(apart)
-        counts = ev.join_counts(ev.stage_time_counts(t) for t in (table[others], table[~others]))
-        part = ev.compute_times(table[~others], counts)
-        pd.testing.assert_series_equal(part, whole[~others], check_names=False)
-    alone = ev.with_compute_times(table[b])["ms_compute_per_frame"]
-    assert alone.tolist() == [1.0 + 0.5 + 1.0] * 5
-    assert whole[b].tolist() == [10.0 + k + 1.0 for k in (5.0, 9.0, 6.0, 8.0, 7.0)]
