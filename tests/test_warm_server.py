@@ -52,6 +52,25 @@ def test_any_code_change_or_environment_change_gives_another_key(tmp_path: Path)
     assert identity.server_key(env) == key
 
 
+def test_files_beside_the_code_keep_the_key_a_package_install_does_not(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """A file created in the project's folder (a sweep's ``sweeps/``, a test's output) leaves
+    the key as it is (else a server importing meanwhile never starts: seen in CI); a change
+    of another folder of ``sys.path`` (a package installed) gives another key."""
+    project, site = tmp_path / "project", tmp_path / "site"
+    project.mkdir()
+    site.mkdir()
+    monkeypatch.setattr(identity, "project_top", lambda: project)
+    search = ["", str(project), str(site)]
+    key = identity.server_key({}, search)
+    (project / "sweeps").mkdir()
+    assert identity.server_key({}, search) == key
+    time.sleep(0.01)
+    (site / "newpackage").mkdir()
+    assert identity.server_key({}, search) != key
+
+
 def test_the_socket_folder_must_be_private(tmp_path: Path) -> None:
     folder = tmp_path / "ttc-bench"
     assert identity.runtime_dir({"XDG_RUNTIME_DIR": str(tmp_path)}) == folder

@@ -63,7 +63,7 @@ def runtime_dir(environ: Mapping[str, str]) -> Path:
 
 def code_files() -> list[tuple[str, int, int]]:
     """(path, size, mtime_ns) of every ``.py`` file of the project's packages, sorted."""
-    top = Path(__file__).resolve().parents[2]
+    top = project_top()
     found = []
     for root in CODE_ROOTS:
         for folder, dirs, files in os.walk(top / root):
@@ -78,14 +78,25 @@ def code_files() -> list[tuple[str, int, int]]:
 
 def library_marks(search: Sequence[str]) -> list[tuple[str, int]]:
     """(folder, mtime_ns) of each folder of ``search`` (``sys.path``): installing or
-    removing a package changes its folder's modification time."""
+    removing a package changes its folder's modification time. The project's own folder (the
+    working folder, ``''``, or the folder holding ``ttc`` and ``experiments``) is marked 0: its
+    code is in :func:`code_files`, and its modification time changes whenever a sweep or a
+    test creates a file beside the code (a new key for every command, or a server that never
+    starts because the key changed while it imported)."""
+    top = project_top()
     marks = []
     for entry in search:
         try:
-            marks.append((entry, os.stat(entry or ".").st_mtime_ns))
+            own = entry == "" or os.path.samefile(entry, top)
+            marks.append((entry, 0 if own else os.stat(entry).st_mtime_ns))
         except OSError:
             marks.append((entry, -1))
     return marks
+
+
+def project_top() -> Path:
+    """The folder holding the project's packages (``ttc``, ``experiments``)."""
+    return Path(__file__).resolve().parents[2]
 
 
 def server_key(environ: Mapping[str, str], search: Sequence[str] | None = None) -> str:
