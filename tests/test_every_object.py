@@ -99,10 +99,15 @@ def test_tracks_chain_box_matches_and_end_where_a_box_is_not_matched() -> None:
 # --- real drive 0009 --------------------------------------------------------------------
 
 
+def _oxts_columns(seq: Path) -> list[str]:
+    """The oxts packet's column names, in order (the raw layout's dataformat.txt)."""
+    lines = (seq / "oxts" / "dataformat.txt").read_text().splitlines()
+    return [line.split(":")[0].strip() for line in lines if line.strip()]
+
+
 def _oxts_forward_speed(seq: Path, frames: range) -> np.ndarray:
     """``vf`` (m/s) of the oxts packet of each frame (the raw layout's data/NNNNNNNNNN.txt)."""
-    lines = (seq / "oxts" / "dataformat.txt").read_text().splitlines()
-    column = [line.split(":")[0].strip() for line in lines if line.strip()].index("vf")
+    column = _oxts_columns(seq).index("vf")
     return np.array([
         float((seq / "oxts" / "data" / f"{i:010d}.txt").read_text().split()[column])
         for i in frames
@@ -147,8 +152,7 @@ def test_parked_cars_are_tracked_static_and_close_at_the_ego_speed(reference_000
 def _oxts_planar_poses(seq: Path, frames: range) -> tuple[np.ndarray, np.ndarray]:
     """Ego position (F × 2, m, Mercator east/north scaled at the first packet) and yaw (F,
     rad) of each frame's oxts packet: the raw layout's lat, lon (degrees) and yaw columns."""
-    lines = (seq / "oxts" / "dataformat.txt").read_text().splitlines()
-    names = [line.split(":")[0].strip() for line in lines if line.strip()]
+    names = _oxts_columns(seq)
     cols = [names.index(c) for c in ("lat", "lon", "yaw")]
     packets = np.array([
         [float(v) for v in (seq / "oxts" / "data" / f"{i:010d}.txt").read_text().split()]

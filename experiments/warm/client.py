@@ -66,15 +66,23 @@ def receive_exactly(conn: socket.socket, size: int) -> bytes:
     return data
 
 
-def forward(argv: list[str]) -> Forwarded:
-    """Run ``argv`` (``ttc-bench``'s arguments) on the warm server (module docstring)."""
+def this_server() -> tuple[str, Path] | None:
+    """(key, socket) of the server for this process's interpreter, ``sys.path`` and
+    environment; None when switched off or the socket folder is not private."""
     if not enabled(os.environ):
-        return Forwarded(None)
+        return None
     try:
         key = server_key(os.environ)
-        path = socket_path(runtime_dir(os.environ), key)
+        return key, socket_path(runtime_dir(os.environ), key)
     except OSError:
+        return None
+
+
+def forward(argv: list[str]) -> Forwarded:
+    """Run ``argv`` (``ttc-bench``'s arguments) on the warm server (module docstring)."""
+    if (found := this_server()) is None:
         return Forwarded(None)
+    key, path = found
     conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
         conn.settimeout(CONNECT_TIMEOUT_S)
@@ -130,13 +138,9 @@ def ensure_server() -> Path | None:
     """Start a server for this interpreter, ``sys.path`` and environment unless one answers
     (``python -m experiments.warm.client``, e.g. at login); its socket, None when switched
     off or not private."""
-    if not enabled(os.environ):
+    if (found := this_server()) is None:
         return None
-    try:
-        key = server_key(os.environ)
-        path = socket_path(runtime_dir(os.environ), key)
-    except OSError:
-        return None
+    key, path = found
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
         try:
             probe.connect(str(path))
