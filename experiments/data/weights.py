@@ -22,7 +22,6 @@ import tarfile
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
-from omegaconf import OmegaConf
 from tqdm import tqdm
 
 from experiments import paths
@@ -32,6 +31,7 @@ from experiments.data.fetch import (  # noqa: F401 (sha256_of: part of this modu
     FileEntry,
     Meter,
     download_one,
+    read_manifest,
     sha256_of,
 )
 from ttc.atomic import write_bytes_atomic
@@ -53,9 +53,7 @@ class WeightsManifest:
 
 def load_manifest(path: Path = DEFAULT_MANIFEST) -> WeightsManifest:
     """Read a weights manifest YAML."""
-    raw = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
-    if not isinstance(raw, dict):
-        raise ValueError(f"{path}: a weights manifest is a mapping")
+    raw = read_manifest(path)
 
     def entry(e: dict) -> FileEntry:
         return FileEntry(str(e["path"]), int(e["size"]), str(e["sha256"]))

@@ -63,10 +63,12 @@ def run_command(request: dict[str, Any], fds: list[int], server_fds: list[int]) 
     code = 1
     try:
         become_client(request, fds, server_fds)
-        start_fork_source()
-        from experiments.cli import run_subcommand  # noqa: PLC0415 (preloaded)
+        from experiments.cli import SUBCOMMANDS, run_subcommand  # noqa: PLC0415 (preloaded)
 
-        code = run_subcommand(list(request["argv"]))
+        argv = list(request["argv"])
+        sub = SUBCOMMANDS.get(argv[0]) if argv else None
+        start_fork_source(sub.module if sub else None)
+        code = run_subcommand(argv)
     except SystemExit as exc:
         code = exit_code(exc.code)
     except BaseException:  # noqa: BLE001 (printed as Python would, then the exit status)

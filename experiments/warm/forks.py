@@ -8,6 +8,11 @@ each worker is then forked from that single-threaded process (milliseconds, noth
 import), with the command's stdout/stderr, folder and environment, and SIGINT blocked (as
 the launcher blocks it in loky's workers: Ctrl-C reaches the main process, which ends them).
 
+The fork server also runs the command's main module once, as ``multiprocessing`` runs it in
+each new worker (``__mp_main__``: ``experiments.run``'s top level registers the config
+schemas): the workers inherit it instead of each running it again (0.1-0.3 s per worker on the
+way to the first job, measured on 2 cores).
+
 Why ``multiprocessing``'s fork server and not loky's ``fork`` context: loky refuses ``fork``
 for its reusable executor (forking a process that runs threads, as the planning main
 process does, can deadlock a child on a lock another thread held). The fork server is the
@@ -22,12 +27,13 @@ from __future__ import annotations
 import os
 import signal
 import socket
-from multiprocessing import connection, forkserver
+from multiprocessing import connection, forkserver, spawn
 
 
-def start_fork_source() -> int:
+def start_fork_source(main_module: str | None = None) -> int:
     """Fork the fork server from this process and make loky use it (module docstring); its
-    process id. Call while this process has a single thread."""
+    process id. ``main_module``: the module the command runs as ``__main__``, run there
+    once as each worker would run it. Call while this process has a single thread."""
     from joblib.externals.loky.backend.context import set_start_method  # noqa: PLC0415
 
     address = connection.arbitrary_address("AF_UNIX")
@@ -42,6 +48,8 @@ def start_fork_source() -> int:
         try:
             os.close(alive_w)
             signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            if main_module:
+                spawn.prepare({"init_main_from_name": main_module})
             forkserver.main(listener.fileno(), alive_r, [])
         except SystemExit:  # every holder of the "alive" pipe is gone
             pass
