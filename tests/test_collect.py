@@ -37,8 +37,9 @@ def test_a_fusion_sweep_ranks_on_the_fused_ttc() -> None:
 
 def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
     """The summary's rows (a fragment at a time, without the columns no metric reads, kept
-    in ``.summary/`` and read back by the next summary) are :func:`ttc.evaluation.lead_rows`
-    of all rows: a pair without a lead row keeps its first row, blanked."""
+    in one file of ``.summary/`` and read back by the next summary) are
+    :func:`ttc.evaluation.lead_rows` of all rows: a pair without a lead row keeps its first
+    row, blanked."""
     import numpy as np
 
     from experiments import lead_cache, store
@@ -57,8 +58,11 @@ def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
         store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 4}, own)
     whole = ev.lead_rows(rows.drop(columns="git_commit"))
     computed = lead_cache.lead_rows(tmp_path)
-    assert len(list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet"))) == 2
+    (kept_file,) = (tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet")  # both fragments
+    written = kept_file.stat().st_mtime_ns
     kept = lead_cache.lead_rows(tmp_path)
+    assert list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet")) == [kept_file]
+    assert kept_file.stat().st_mtime_ns == written  # read, not written again
     for got in (computed, kept):
         got = got.sort_values(["run_id", "frame"], ignore_index=True)
         pd.testing.assert_frame_equal(
@@ -70,6 +74,39 @@ def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
     store.save_batch(tmp_path, "batch-x", [{"run_id": "a", "status": "ok", "n_rows": 4}], redo)
     again = lead_cache.lead_rows(tmp_path)
     np.testing.assert_array_equal(again["ttc_camera"], [4.0, np.nan, 2.0, 3.0])
+    assert len(list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet"))) == 2
+
+
+def test_kept_lead_rows_unreadable_duplicated_or_many_files(tmp_path, monkeypatch) -> None:
+    """A kept file that cannot be read is left out (its fragments computed again); a
+    fragment kept in two files is taken once; past ``MAX_KEPT_FILES`` files the rows used
+    are kept as one file and the others removed."""
+    from experiments import lead_cache, store
+
+    def add_run(run_id: str) -> None:
+        rows = pd.DataFrame({"run_id": run_id, "frame": [1, 2], "is_lead": True,
+                             "ttc_camera": [1.0, 2.0]})  # fmt: skip
+        store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 2}, rows)
+
+    folder = tmp_path / lead_cache.CACHE_DIR
+    add_run("r0")
+    first = lead_cache.lead_rows(tmp_path)
+    (kept,) = folder.glob("lead-*.parquet")
+    copy = folder / "lead-copy.parquet"  # the same fragment in a second file
+    copy.write_bytes(kept.read_bytes())
+    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), first)
+    kept.write_bytes(b"PAR1 not a parquet file")
+    copy.unlink()
+    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), first)  # computed again
+    monkeypatch.setattr(lead_cache, "MAX_KEPT_FILES", 3)
+    for i in range(1, 4):  # one kept file per summary that computed something
+        add_run(f"r{i}")
+        rows = lead_cache.lead_rows(tmp_path)
+    assert sorted(rows["run_id"].unique()) == ["r0", "r1", "r2", "r3"]
+    assert len(rows) == 8
+    (whole,) = folder.glob("lead-*.parquet")  # 4 files -> 1
+    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), rows)
+    assert list(folder.glob("lead-*.parquet")) == [whole]
 
 
 def _sweep_of_runs(folder, n_runs: int) -> None:

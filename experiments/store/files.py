@@ -43,9 +43,10 @@ class StoreError(RuntimeError):
         super().__init__(f"{self.path}: {problem}")
 
 
-def parquet_bytes(df: pd.DataFrame, metadata: dict[bytes, bytes] | None = None) -> bytes:
-    """``df`` as parquet file bytes (no index), with extra schema ``metadata``."""
-    table = pa.Table.from_pandas(df, preserve_index=False)
+def parquet_bytes(df: pd.DataFrame | pa.Table, metadata: dict[bytes, bytes] | None = None) -> bytes:
+    """``df`` (a frame or an Arrow table) as parquet file bytes (no index), with extra
+    schema ``metadata``."""
+    table = df if isinstance(df, pa.Table) else pa.Table.from_pandas(df, preserve_index=False)
     if metadata:
         table = table.replace_schema_metadata({**(table.schema.metadata or {}), **metadata})
     sink = io.BytesIO()
@@ -53,8 +54,10 @@ def parquet_bytes(df: pd.DataFrame, metadata: dict[bytes, bytes] | None = None) 
     return sink.getvalue()
 
 
-def write_parquet_atomic(df: pd.DataFrame, path: Path, metadata: dict | None = None) -> str:
-    """Write ``df`` to ``path`` as parquet, atomically; return the file's SHA-256."""
+def write_parquet_atomic(
+    df: pd.DataFrame | pa.Table, path: Path, metadata: dict | None = None
+) -> str:
+    """Write ``df`` (a frame or an Arrow table) to ``path`` as parquet, atomically; return the file's SHA-256."""
     data = parquet_bytes(df, metadata)
     write_bytes_atomic(data, path)
     return hashlib.sha256(data).hexdigest()
