@@ -104,3 +104,34 @@ def test_pair_detail_rows_are_the_runs_rows(kitti_dir: Path, cache: StageCache) 
     )
     owner = detail.lane_owner[5]
     assert (owner == detail.lead_box).sum() == lead["lidar_points_curr"]
+
+
+def test_a_frames_lidar_association_is_kept_for_the_next_runs_of_the_process(
+    data_dir: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """Drive 0009 frames 0-4: a frame's association (every box's own points) is computed
+    once per process for the runs that share its boxes, points and shrink; a run with another
+    shrink gets its own; rows are those of a cache that keeps nothing in memory."""
+    import dataclasses
+
+    from experiments.config import prepared_frame_range
+    from ttc.engine import cache as stage_cache
+    from ttc.engine import pair_steps
+
+    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())  # this test's own
+    calls = []
+    real = pair_steps.associate_objects
+    monkeypatch.setattr(pair_steps, "associate_objects",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))  # fmt: skip
+    base = settings_from_config(composed(["dataset=kitti_raw_0009", "dataset.last=4"]))
+    frames = prepared_frame_range(composed(["dataset=kitti_raw_0009", "dataset.last=4"]))
+    runs = [base, dataclasses.replace(base, keypoint_filter=dataclasses.replace(
+        base.keypoint_filter, name="zscore")), dataclasses.replace(base, lidar_shrink=0.2)]  # fmt: skip
+    kept = StageCache(tmp_path)
+    rows = [run_settings([s], frames, kept)[0] for s in runs]  # one job each, as workers do
+    assert len(calls) == 2 * 5  # frames 0-4, once per shrink
+    untimed = [c for c in rows[0] if c.startswith(("ms_", "cached_"))]
+    for s, got in zip(runs, rows, strict=True):
+        alone, _ = run_settings([s], frames, StageCache(tmp_path, memory_mb=0))
+        pd.testing.assert_frame_equal(got.drop(columns=untimed), alone.drop(columns=untimed))
+    assert not rows[2]["lidar_points_curr"].equals(rows[0]["lidar_points_curr"])

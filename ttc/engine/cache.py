@@ -95,11 +95,13 @@ def cache_key(stage: str, *parts: Any) -> str:
 
 @dataclass
 class Lookup:
-    """What one cache request returned: the arrays, whether they came from disk, time (ms)."""
+    """What one cache request returned: the arrays, whether they came from disk, time (ms),
+    and the entry's key (what its content depends on)."""
 
     arrays: Arrays
     cached: bool
     ms: float
+    key: str = ""
 
 
 @dataclass
@@ -157,6 +159,18 @@ class StageCache:
         if not self.memory_bytes:
             return arrays
         return _RECENT.put(self._name(stage, key), arrays, self.memory_bytes)
+
+    def recent(self, name: Hashable) -> Arrays | None:
+        """Arrays this process kept under ``name`` (:meth:`keep`), or None: work derived from
+        cached entries and shared by the jobs a worker runs, never written to disk."""
+        return _RECENT.get(("derived", name)) if self.memory_bytes else None
+
+    def keep(self, name: Hashable, arrays: Arrays) -> Arrays:
+        """Keep ``arrays`` in this process's memory under ``name`` (a name that holds the keys
+        of every input, so it cannot go stale); the read-only arrays kept."""
+        if not self.memory_bytes:
+            return arrays
+        return _RECENT.put(("derived", name), arrays, self.memory_bytes)
 
     def store(self, stage: str, key: str, arrays: Arrays) -> None:
         """Write an entry atomically (temporary file + rename)."""
@@ -233,9 +247,10 @@ class StageCache:
                     arrays = task.compute()
                     self.store(task.stage, task.key, arrays)
                     arrays = self._remember(task.stage, task.key, arrays)
-                    task.result = Lookup(arrays, False, 1e3 * (time.perf_counter() - start))
+                    ms = 1e3 * (time.perf_counter() - start)
+                    task.result = Lookup(arrays, False, ms, task.key)
                     return task.result
-        task.result = Lookup(arrays, True, 1e3 * (time.perf_counter() - start))
+        task.result = Lookup(arrays, True, 1e3 * (time.perf_counter() - start), task.key)
         return task.result
 
     def resolve(

@@ -13,7 +13,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from ttc.engine.cache import Lookup
+import numpy as np
+
+from ttc.engine.cache import Arrays, Lookup, StageCache
 from ttc.features.keypoints import X, Y
 from ttc.features.matching import current_keypoints, pair_matches
 from ttc.io.calibration import Calibration
@@ -41,6 +43,21 @@ class FrameLidar:
 
     lead: LeadAssociation
     objects: ObjectAssociation
+
+    def arrays(self) -> Arrays:
+        """Its arrays by name (what :meth:`from_arrays` reads back)."""
+        o = self.objects
+        return {"uv": self.lead.uv, "owner": self.lead.owner, "lead": np.array(self.lead.lead),
+                "object_owner": o.owner, "distance_m": o.distance_m, "spread_m": o.spread_m,
+                "n_points": o.n_points, "n_frustum": o.n_frustum}  # fmt: skip
+
+    @classmethod
+    def from_arrays(cls, a: Arrays) -> FrameLidar:
+        """The association of :meth:`arrays`' output."""
+        lead = LeadAssociation(a["uv"], a["owner"], int(a["lead"]))
+        objects = ObjectAssociation(a["object_owner"], a["distance_m"], a["spread_m"],
+                                    a["n_points"], a["n_frustum"])  # fmt: skip
+        return cls(lead, objects)
 
 
 def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
@@ -71,13 +88,15 @@ class PairSteps:
         per_frame: dict[str, dict[int, Lookup]],
         match: Lookup,
         frame_lidar: dict[int, FrameLidar] | None = None,
+        cache: StageCache | None = None,
     ) -> None:
         """``frame_lidar``: each frame's lidar association, shared by the pairs of a run (a
         frame is the current one of a pair and the previous one of the next); None: this
-        pair's own."""
+        pair's own. ``cache``: where a frame's association is kept for the other runs of this
+        process (:meth:`StageCache.keep`; it depends on none of a group's own axes)."""
         self.frames, self.calib, self.dt, self.prev, self.curr = frames, calib, dt, prev, curr
         self.frame_lidar = {} if frame_lidar is None else frame_lidar
-        self.per_frame, self.match = per_frame, match
+        self.per_frame, self.match, self.cache = per_frame, match, cache
         self.obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
         self.lane = {i: per_frame["lidar"][i].arrays for i in (prev, curr)}
         self.desc_prev = per_frame["descriptors"][prev].arrays
@@ -131,29 +150,42 @@ class PairSteps:
         """(lane points' pixels, their owner box, lead box, every box's own lidar points
         (:func:`associate_objects`), ms) per frame of the pair. Each frame is associated once
         per run (:attr:`frame_lidar`: a frame is the current one of a pair and the previous
-        one of the next; its inputs are upstream of every member); ms counts the frames this
-        pair associated. The lead is the current box holding most lane lidar points."""
+        one of the next) and once per process for the runs that share its boxes, points
+        and shrink (:meth:`_frame_lidar`); ms: the computing time of the frames this pair
+        associated for its run. The lead is the current box holding most lane lidar points."""
         if self.assoc is None:
-            lane, obj, velo_to_image = self.lane, self.obj, self.calib.velo_to_image
-            store = self.frame_lidar
-
-            def associate() -> dict[int, FrameLidar]:
-                for i in (self.prev, self.curr):
-                    if i not in store:
-                        roi = obj[i]["roi"]
-                        store[i] = FrameLidar(
-                            associate_lead(lane[i]["points"], velo_to_image, roi, s.lidar_shrink),
-                            associate_objects(lane[i]["object_points"], velo_to_image, roi,
-                                              s.lidar_shrink, s.object_lidar),
-                        )  # fmt: skip
-                return {i: store[i] for i in (self.prev, self.curr)}
-
-            found, ms = _timed(associate)
+            store, ms = self.frame_lidar, 0.0
+            for i in (self.prev, self.curr):
+                if i not in store:
+                    store[i], ms_i = self._frame_lidar(i, s)
+                    ms += ms_i
+            found = {i: store[i] for i in (self.prev, self.curr)}
             uv = {i: a.lead.uv for i, a in found.items()}
             owners = {i: a.lead.owner for i, a in found.items()}
             objects = {i: a.objects for i, a in found.items()}
             self.assoc = (uv, owners, found[self.curr].lead.lead, objects, ms)
         return self.assoc
+
+    def _frame_lidar(self, i: int, s: Settings) -> tuple[FrameLidar, float]:
+        """Frame ``i``'s association and the ms it took to compute: computed, or kept by
+        :attr:`cache` from another run of this process (named by the keys of the frame's
+        boxes and points, the calibration and the parameters: it cannot go stale)."""
+        name = ("lidar_association", self.per_frame["objects"][i].key,
+                self.per_frame["lidar"][i].key, self.calib.velo_to_image.tobytes(),
+                s.lidar_shrink, repr(s.object_lidar))  # fmt: skip
+        keyed = self.cache is not None and all(name[1:3])
+        if keyed and (kept := self.cache.recent(name)) is not None:
+            return FrameLidar.from_arrays(kept), float(kept["ms"])
+        lane, roi = self.lane[i], self.obj[i]["roi"]
+        velo_to_image = self.calib.velo_to_image
+        found, ms = _timed(lambda: FrameLidar(
+            associate_lead(lane["points"], velo_to_image, roi, s.lidar_shrink),
+            associate_objects(lane["object_points"], velo_to_image, roi, s.lidar_shrink,
+                              s.object_lidar),
+        ))  # fmt: skip
+        if keyed:
+            self.cache.keep(name, {**found.arrays(), "ms": np.array(ms)})
+        return found, ms
 
     def _fp1(self, s: Settings, k: dict[str, str], selected: Any) -> tuple[Any, float]:
         prev, curr, obj = self.prev, self.curr, self.obj

@@ -10,7 +10,7 @@ once for all the settings that share its inputs:
 piece              shared by the settings with the same
 =================  ==========================================================
 selection          selector
-lidar association  (the group: lane points, boxes and shrink are upstream)
+lidar association  boxes, points, shrink: a frame once per process (its runs)
 FP.1               selector, box matching
 FP.2               box pair, lidar estimator
 FP.3               selector, box, box-matching shrink, keypoint filter
@@ -254,7 +254,7 @@ def _group_rows(
                 for done in [i for i in frame_lidar if i != prev]:
                     del frame_lidar[done]
                 shared = PairSteps(frames, calib, dt, prev, curr, per_frame,
-                                   matches[(prev, curr)], frame_lidar)  # fmt: skip
+                                   matches[(prev, curr)], frame_lidar, cache)  # fmt: skip
                 for m in members:
                     if m in failed:
                         continue
