@@ -64,12 +64,19 @@ def stage_time_counts(frames: pd.DataFrame) -> StageCounts:
     return out
 
 
-def _first_rows(codes: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(the first row of each distinct combination of ``codes`` (each (n,) int, ≥ 0), in the
-    order of first appearance; (groups,) int64 how many rows have it)."""
+def group_codes(codes: list[np.ndarray]) -> np.ndarray:
+    """(n,) int64: each row's distinct combination of ``codes`` (each (n,) int ≥ 0, e.g.
+    :func:`pandas.factorize` of a column), numbered 0, 1, ... in the order first seen."""
     group = np.zeros(len(codes[0]) if codes else 0, dtype=np.int64)
     for c in codes:  # (group, code) pairs renumbered: the numbers stay below n²
         group = pd.factorize(group * (int(c.max(initial=0)) + 1) + c)[0]
+    return group
+
+
+def _first_rows(codes: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(the first row of each distinct combination of ``codes`` (:func:`group_codes`), in the
+    order first seen; (groups,) int64 how many rows have it)."""
+    group = group_codes(codes)
     _, first = np.unique(group, return_index=True)  # groups numbered as first seen
     return first, np.bincount(group).astype(np.int64)
 
