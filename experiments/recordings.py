@@ -5,12 +5,13 @@ imports (the end-of-sweep summary, the references, MLflow and the report use it)
 
 from __future__ import annotations
 
-import functools
 import json
 import math
+import sys
 from json.encoder import encode_basestring_ascii
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from experiments.config import setting_hash
@@ -22,8 +23,9 @@ from ttc.settings import SETTING_AXES, only_sensor_axes
 def recording_of(runs: pd.DataFrame) -> pd.Series:
     """The recording (``dataset.sequence``, a folder under the data root) of each run, by
     run id."""
-    sequences = [_sequence(c) for c in runs["config"]]
-    return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
+    texts = config_table(runs["config"])["dataset.sequence"]
+    sequences = texts.map({t: json.loads(t) for t in texts.unique()})  # each value parsed once
+    return pd.Series(sequences.to_numpy(), index=runs["run_id"].to_numpy(), dtype=str)
 
 
 def recording_source_of(runs: pd.DataFrame, run_id: str, root: Path) -> Path | BagSource:
@@ -33,13 +35,6 @@ def recording_source_of(runs: pd.DataFrame, run_id: str, root: Path) -> Path | B
     dataset = json.loads(runs.loc[runs["run_id"] == run_id, "config"].iloc[0])["dataset"]
     recording = Path(root) / dataset["sequence"]
     return bag_source(dataset, recording) or recording
-
-
-@functools.lru_cache(maxsize=1 << 17)
-def _sequence(config: str) -> str:
-    """``dataset.sequence`` of a run's stored config (parsed once per process: the summary
-    asks three times for each of 28,000 runs of ``grand``, 1.1 s each)."""
-    return json.loads(config)["dataset"]["sequence"]
 
 
 def run_ids_by_recording(runs: pd.DataFrame) -> dict[str, list[str]]:
@@ -60,24 +55,45 @@ def _leaf_text(value: object) -> str:
     return json.dumps(value, sort_keys=True)
 
 
-def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
-    """``{"a": {"b": 1}}`` → ``{"a.b": "1"}``: each leaf as its JSON text (lists and scalars
-    are leaves)."""
-    out: dict[str, object] = {}
+def _flat(tree: dict, prefix: str = "") -> dict[str, str]:
+    """``{"a": {"b": 1}}`` → ``{"a.b": "1"}``: each leaf as its JSON text (lists, scalars
+    and empty dicts are leaves; keys and texts interned: a sweep's runs share them)."""
+    out: dict[str, str] = {}
     for key, value in tree.items():
-        if isinstance(value, dict):
+        if isinstance(value, dict) and value:
             out.update(_flat(value, f"{prefix}{key}."))
         else:
-            out[f"{prefix}{key}"] = _leaf_text(value)
+            out[sys.intern(f"{prefix}{key}")] = sys.intern(_leaf_text(value))
     return out
 
 
-def _flat_configs(runs: pd.DataFrame) -> list[dict[str, object]]:
-    """Each run's stored config flattened (:func:`_flat`), in the order of ``runs``."""
-    return [_flat(json.loads(c)) for c in runs["config"]]
+#: The last configs :func:`config_table` flattened: (the hash of each config text → its row
+#: of the table, the table). The report asks for them in the load step, the references, the
+#: "every object" report and each page's header (``grand`` 0–18: 33,600 configs, 2.5 s a pass).
+_FLAT_CONFIGS: list[tuple[dict[int, int], pd.DataFrame]] = []
+#: A config key's cell where the config lacks it, or has an empty dict there (no leaf).
+NO_LEAF = "{}"
 
 
-def recording_entries(runs: pd.DataFrame, flat: list[dict[str, object]] | None = None) -> set[str]:
+def config_table(configs: pd.Series) -> pd.DataFrame:
+    """Each stored run config (JSON text; runs.parquet ``config``) flattened (:func:`_flat`):
+    one column per dotted key that one of them has, each cell the leaf's JSON text (an empty
+    dict's ``{}``), NaN where a config lacks the key or is itself missing; ``configs``' index.
+    The table of the last configs is kept: when they include these (looked up by the hash of
+    each text) none is parsed again, else these are (each distinct text once)."""
+    texts = [t if isinstance(t, str) else None for t in configs]
+    rows, table = _FLAT_CONFIGS[0] if _FLAT_CONFIGS else ({}, pd.DataFrame())
+    if any(t is not None and hash(t) not in rows for t in texts):
+        distinct = list(dict.fromkeys(t for t in texts if t is not None))
+        table = pd.DataFrame([_flat(json.loads(t)) for t in distinct], dtype=object)
+        rows = {hash(t): i for i, t in enumerate(distinct)}
+        _FLAT_CONFIGS[:] = [(rows, table)]
+    at = [rows[hash(t)] if t is not None else -1 for t in texts]
+    found = table.reindex(at).set_axis(configs.index)  # a missing config (-1): NaN
+    return found.dropna(axis=1, how="all")
+
+
+def recording_entries(runs: pd.DataFrame) -> set[str]:
     """The setting entries (dotted keys) that belong to the recording, not to the setting:
     those with one value among each recording's runs of one choice on every axis
     (``detector.name``, ...), except the choices themselves. The dataset (name, frames, drive)
@@ -85,8 +101,8 @@ def recording_entries(runs: pd.DataFrame, flat: list[dict[str, object]] | None =
     lidar crop, its camera pair distance), also where an option's own value differs from
     another's (``camera_ttc=vertical_ratio``'s 20 px beside ``median_ratio``'s 100 px on drive
     0052, 0 px for both on sequence 04); an entry a sweep varies within one choice is a
-    setting's. ``flat``: :func:`_flat_configs` of ``runs`` when the caller has them."""
-    flat = pd.DataFrame(_flat_configs(runs) if flat is None else flat, index=runs.index)
+    setting's."""
+    flat = config_table(runs["config"])
     choices = [f"{axis}.name" for axis in SETTING_AXES if axis != "dataset"]
     present = [c for c in choices if c in flat]
     keys = [recording_of(runs).to_numpy(), *(flat[c].to_numpy() for c in present)]
@@ -100,16 +116,20 @@ def setting_of(runs: pd.DataFrame, sensor: str | None = None) -> pd.Series:
     equal for two runs of one recording. ``sensor="camera"``: the axes that change only the
     lidar or the fused TTC are left out too, so runs that differ only there (same camera TTC)
     share an id. By run id."""
-    flats = _flat_configs(runs)  # each config parsed once
-    left_out = recording_entries(runs, flats)
+    flat = config_table(runs["config"])
+    left_out = recording_entries(runs)
     other = () if sensor != "camera" else (*only_sensor_axes("lidar"), *only_sensor_axes("fused"))
     prefixes = tuple(f"{axis}." for axis in other)
-
-    def key(flat: dict[str, object]) -> str:
-        kept = {k: v for k, v in sorted(flat.items()) if k not in left_out}
-        return setting_hash({k: v for k, v in kept.items() if not k.startswith(prefixes)})
-
-    return pd.Series([key(f) for f in flats], index=runs["run_id"].to_numpy())
+    kept = [k for k in sorted(flat.columns) if k not in left_out and not k.startswith(prefixes)]
+    texts = flat[kept].fillna(NO_LEAF)
+    codes = np.column_stack([pd.factorize(texts[k])[0] for k in kept] or [np.zeros(len(flat))])
+    _, first, inverse = np.unique(codes, axis=0, return_index=True, return_inverse=True)
+    leaves = texts.to_numpy()
+    ids = [
+        setting_hash({k: v for k, v in zip(kept, leaves[i], strict=True) if v != NO_LEAF})
+        for i in first
+    ]
+    return pd.Series([ids[i] for i in inverse.ravel()], index=runs["run_id"].to_numpy())
 
 
 def runs_drive_rankings(

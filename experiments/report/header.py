@@ -12,6 +12,7 @@ import pandas as pd
 
 from experiments.paths import shown
 from experiments.provenance import code_version, machine, package_versions
+from experiments.recordings import config_table
 from experiments.report.load import SweepData
 from ttc.settings import AXES
 
@@ -21,33 +22,16 @@ def _unique(values: Iterable[Any]) -> str:
     return ", ".join(sorted({str(v) for v in distinct if v is not None and v == v})) or "n/a"
 
 
-def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
-    """A config's leaves by dotted key (lists are leaves)."""
-    if not isinstance(tree, dict) or not tree:
-        return {prefix: tree}
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        out.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
-    return out
-
-
 def _common_config(configs: pd.Series) -> tuple[dict[str, Any], list[str]]:
-    """Keys (dotted) equal in every run's config, and the keys that vary. Each distinct
-    config text is parsed once; a leaf is compared only while it is still common."""
-    texts = pd.unique(configs.dropna())
-    if not len(texts):
+    """Keys (dotted) with one value (JSON text) in every run's config, and the keys that vary
+    (:func:`experiments.recordings.config_table`: each config parsed once per report)."""
+    flat = config_table(configs.dropna())
+    if flat.empty:
         return {}, []
-    common = _flat(json.loads(texts[0]))
-    keys = set(common)
-    for text in texts[1:]:
-        leaves = _flat(json.loads(text))
-        keys.update(leaves)
-        for key in [k for k, v in common.items() if leaves.get(k, _MISSING) != v]:
-            del common[key]
-    return common, sorted(keys - common.keys())
-
-
-_MISSING = object()
+    first = flat.iloc[0]
+    same = flat.eq(first).all()  # NaN (a config without the key) equals nothing
+    common = {key: json.loads(first[key]) for key in flat.columns[same.to_numpy()]}
+    return common, sorted(set(flat.columns) - common.keys())
 
 
 #: The last header's data and lines (a report writes the same header on every page).

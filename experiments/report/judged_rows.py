@@ -8,16 +8,16 @@ each fragment is cut to those rows at once, so no frame of every row and every c
 from __future__ import annotations
 
 from collections.abc import Iterable
+from collections.abc import Set as AbstractSet
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.compute as pc
 
 from experiments.identity import with_neutral_axes
 from experiments.recordings import run_ids_by_recording, setting_of
 from experiments.tools.schema import FRAME_COLUMNS
 from ttc import evaluation as ev
+from ttc.evaluation.stage_times import group_codes
 from ttc.io.frames import TRUTH_COLUMNS
 from ttc.settings import AXES, CACHED_STAGES, only_sensor_axes
 
@@ -67,9 +67,11 @@ def judged_mask(keys: pd.DataFrame) -> np.ndarray:
     """Rows (n,) bool that :func:`ttc.evaluation.lead_rows` can pick: every ``is_lead`` row,
     and a pair's first row where the pair (``run_id``, ``frame``) has none."""
     lead = keys["is_lead"].astype(bool).to_numpy()
-    pair = [keys["run_id"], keys["frame"]]
-    has_lead = pd.Series(lead).groupby(pair, sort=False).transform("any").to_numpy()
-    first = ~keys.duplicated(["run_id", "frame"]).to_numpy()
+    coded = [pd.factorize(keys[c], use_na_sentinel=False)[0] for c in ("run_id", "frame")]
+    pair = group_codes(coded)  # (n,) the pair of each row, numbered as first seen
+    has_lead = np.bincount(pair, weights=lead).astype(bool)[pair]
+    first = np.zeros(len(pair), dtype=bool)
+    first[np.unique(pair, return_index=True)[1]] = True
     return lead | (~has_lead & first)
 
 
@@ -111,13 +113,14 @@ def box_runs(runs: pd.DataFrame) -> set[str]:
     return {i for ids in by_recording for i in camera_runs(runs[runs["run_id"].isin(ids)]).index}
 
 
-def is_in(values: pd.Series, ids: pa.Array) -> np.ndarray:
-    """(n,) bool: each of ``values`` (strings) is one of ``ids`` (:func:`pyarrow.compute.is_in`
-    on a value set built once; pandas' ``isin`` on an Arrow string column converts every id to
-    a scalar each call: 0.3 s a fragment for ``grand``'s 33,600 run ids, 88 of its report's
-    300 s)."""
-    array = pa.array(values)
-    return pc.is_in(array, value_set=ids.cast(array.type)).to_numpy(zero_copy_only=False)
+def is_in(values: pd.Series, ids: AbstractSet[str]) -> np.ndarray:
+    """(n,) bool: each of ``values`` (strings) is one of ``ids``; each distinct value looked
+    up once (a fragment of ``grand`` repeats a few hundred run ids over 26,000 rows; pandas'
+    ``isin`` on an Arrow string column converted every id to a scalar each call: 0.3 s a
+    fragment for ``grand``'s 33,600 run ids, 88 of its report's 300 s)."""
+    codes, distinct = pd.factorize(values, use_na_sentinel=False)
+    found = np.fromiter((v in ids for v in distinct), dtype=bool, count=len(distinct))
+    return found[codes]
 
 
 def read_rows(
@@ -130,7 +133,7 @@ def read_rows(
     box pairs of :func:`box_runs` on :data:`BOX_COLUMNS`, and the computed stage times of
     every row counted (:func:`ttc.evaluation.stage_time_counts`: a few rows per stage, frame
     and value). Memory: what is kept, and one part."""
-    ids, boxed_ids = pa.array(runs["run_id"]), pa.array(sorted(box_runs(runs)), pa.string())
+    ids, boxed_ids = set(runs["run_id"]), box_runs(runs)
     lead_parts, box_parts, counts = [], [], []
     for part in parts:
         mine = is_in(part["run_id"], ids)

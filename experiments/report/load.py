@@ -162,6 +162,7 @@ class Context:
     details: dict[tuple[str, int, int], PairDetail] = field(default_factory=dict)
     calls: int = 0
     models_found: bool = False
+    setups: dict[str, tuple[Settings, FrameRange]] = field(default_factory=dict)
 
     def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
         """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised); the first
@@ -172,7 +173,7 @@ class Context:
         if key in self.details:
             self.details[key] = self.details.pop(key)  # the most recently used last
             return self.details[key]
-        settings, frames = setting_of_run(runs, run_id, self.root)
+        settings, frames = self.setup(runs, run_id)
         if not self.models_found and uses_bundled_files(settings.objects):
             ensure_model_files()
             self.models_found = True
@@ -182,9 +183,16 @@ class Context:
             del self.details[next(iter(self.details))]
         return self.details[key]
 
+    def setup(self, runs: pd.DataFrame, run_id: str) -> tuple[Settings, FrameRange]:
+        """:func:`setting_of_run` of a run of ``runs`` (memoised by run id: unique across a
+        report's sweeps; its config is parsed once, not for each pair detail and lookup)."""
+        if run_id not in self.setups:
+            self.setups[run_id] = setting_of_run(runs, run_id, self.root)
+        return self.setups[run_id]
+
     def settings(self, runs: pd.DataFrame, run_id: str) -> Settings:
         """The core settings of a run of ``runs``."""
-        return setting_of_run(runs, run_id, self.root)[0]
+        return self.setup(runs, run_id)[0]
 
 
 def make_context(data_dir: Path | None = None, cache_dir: Path | None = None) -> Context:

@@ -15,7 +15,7 @@ from experiments.reference_store import object_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.judged_rows import camera_runs
-from experiments.report.load import Context, SweepData, setting_of_run
+from experiments.report.load import Context, SweepData
 from experiments.report.plots import plot_breakdown, plot_objects, save_figure
 from ttc.evaluation.object_errors import (
     breakdown,
@@ -142,7 +142,7 @@ def recording_objects_report(data: SweepData, ctx: Context, out: Path) -> pd.Dat
     which has no objects besides its lead: None), its reference from
     :func:`experiments.reference_store.object_references`."""
     refs = object_references(data.frames, data.runs,
-                             lambda run_id: setting_of_run(data.runs, run_id, ctx.root),
+                             lambda run_id: ctx.setup(data.runs, run_id),
                              ctx.root, ctx.cache)  # fmt: skip
     return objects_report(data, next(iter(refs.values())), out) if refs else None
 

@@ -18,8 +18,6 @@ instead.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pandas as pd
 
@@ -223,11 +221,26 @@ def bootstrap_rank_intervals(
     out["block_length"] = length
     q = [(1.0 - ci) / 2.0, 1.0 - (1.0 - ci) / 2.0]
     for name, v in values.items():
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN runs give NaN
-            out[f"{sensor}_{name}_lo"] = np.nanquantile(v, q[0], axis=0, method="lower")
-            out[f"{sensor}_{name}_hi"] = np.nanquantile(v, q[1], axis=0, method="higher")
+        out[f"{sensor}_{name}_lo"], out[f"{sensor}_{name}_hi"] = nan_interval(v, q[0], q[1])
     return out
+
+
+def nan_interval(values: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """``np.nanquantile(values, lo, axis=0, method="lower")`` and ``(…, hi, …,
+    method="higher")`` of ``values`` (replicates × runs; NaN where a run's replicate has
+    none): the same order statistics from one sort of all columns, not a call per column
+    (numpy's ``apply_along_axis``: 1.5 s for ``grand``'s 5,600 runs); NaN for an all-NaN
+    run."""
+    ordered = np.sort(values, axis=0)  # NaN last
+    n = np.count_nonzero(~np.isnan(values), axis=0)
+
+    def at(index: np.ndarray) -> np.ndarray:
+        picked = np.take_along_axis(ordered, np.maximum(index, 0)[None, :], axis=0)[0]
+        return np.where(n > 0, picked, np.nan)
+
+    below = np.floor((n - 1) * np.float64(lo)).astype(np.intp)  # numpy's "lower" index
+    above = np.ceil((n - 1) * np.float64(hi)).astype(np.intp)  # and its "higher" one
+    return at(below), at(above)
 
 
 def tied_for_first(intervals: pd.DataFrame) -> int:

@@ -160,9 +160,15 @@ def track_bootstrap_ranks(
     scores = np.full((n_boot, len(settings)), np.inf)
     point = np.full(len(settings), np.inf)
     n_pairs = np.zeros(len(settings), dtype=np.int64)
-    for j, (_, mine) in enumerate(t.groupby("setting", sort=True)):
-        values = mine[f"{sensor}_score"].to_numpy(dtype=float)
-        weight = counts[:, np.searchsorted(tracks, mine["ref_track_id"].to_numpy())]
+    # each setting's pairs in the table's order (as a stable group-by gives them)
+    code = pd.factorize(t["setting"], sort=True)[0]
+    order = np.argsort(code, kind="stable")
+    ends = np.cumsum(np.bincount(code, minlength=len(settings)))
+    all_values = t[f"{sensor}_score"].to_numpy(dtype=float)[order]
+    all_tracks = np.searchsorted(tracks, t["ref_track_id"].to_numpy()[order])
+    for j, (start, end) in enumerate(zip(np.r_[0, ends[:-1]], ends, strict=True)):
+        values = all_values[start:end]
+        weight = counts[:, all_tracks[start:end]]
         n_pairs[j] = len(values)
         point[j] = values.mean()
         total = weight.sum(axis=1)  # (n_boot,): pairs of this setting in each replicate

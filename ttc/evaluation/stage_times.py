@@ -39,17 +39,46 @@ def stage_time_columns(frames: pd.DataFrame) -> list[str]:
 def stage_time_counts(frames: pd.DataFrame) -> StageCounts:
     """Per cached stage whose time and flag columns ``frames`` has: its computed times (rows
     whose flag is false and time not NaN) counted, one row per (stage axes ``frames`` has,
-    ``frame``, ``ms``) with ``n`` the rows (NaN axis values kept as a value)."""
+    ``frame``, ``ms``) with ``n`` the rows (NaN axis values kept as a value), in the order of
+    each one's first row. Each column is coded once (:func:`pandas.factorize`) for every
+    stage, and the counting is on the codes (``grand`` 0–18: 3.7 M rows, 4 s as a group-by of
+    the string columns per stage)."""
     out = {}
+    codes: dict[str, np.ndarray] = {}
+
+    def coded(column: str) -> np.ndarray:
+        if column not in codes:
+            codes[column] = pd.factorize(frames[column], use_na_sentinel=False)[0]
+        return codes[column]
+
     for name, (ms, flag, inputs) in CACHED_STAGE_INPUTS.items():
         if ms not in frames or flag not in frames:
             continue
         keys = [c for c in inputs if c in frames]
         computed = ~frames[flag].astype(bool).to_numpy() & frames[ms].notna().to_numpy()
-        table = frames.loc[computed, [*keys, "frame", ms]].rename(columns={ms: "ms"})
-        sizes = table.groupby([*keys, "frame", "ms"], dropna=False, sort=False).size()
-        out[name] = sizes.rename("n").reset_index()
+        rows = np.flatnonzero(computed)
+        first, n = _first_rows([coded(c)[rows] for c in [*keys, "frame", ms]] if len(rows) else [])
+        taken = {c: frames[c].take(rows[first]) for c in keys + ["frame"]}
+        table = pd.DataFrame({**taken, "ms": frames[ms].take(rows[first]), "n": n})
+        out[name] = table.reset_index(drop=True)
     return out
+
+
+def group_codes(codes: list[np.ndarray]) -> np.ndarray:
+    """(n,) int64: each row's distinct combination of ``codes`` (each (n,) int ≥ 0, e.g.
+    :func:`pandas.factorize` of a column), numbered 0, 1, ... in the order first seen."""
+    group = np.zeros(len(codes[0]) if codes else 0, dtype=np.int64)
+    for c in codes:  # (group, code) pairs renumbered: the numbers stay below n²
+        group = pd.factorize(group * (int(c.max(initial=0)) + 1) + c)[0]
+    return group
+
+
+def _first_rows(codes: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(the first row of each distinct combination of ``codes`` (:func:`group_codes`), in the
+    order first seen; (groups,) int64 how many rows have it)."""
+    group = group_codes(codes)
+    _, first = np.unique(group, return_index=True)  # groups numbered as first seen
+    return first, np.bincount(group).astype(np.int64)
 
 
 def join_counts(parts: Iterable[StageCounts]) -> StageCounts:
