@@ -22,6 +22,7 @@ import contextlib
 import hashlib
 import inspect
 import json
+import pickle
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ import pyarrow.parquet as pq
 
 from experiments.store.dataset import Fragment, fragments, iter_tables, unified_schema
 from experiments.store.files import write_parquet_atomic
+from ttc.atomic import write_bytes_atomic
 
 #: Folder of the kept lead rows, under the sweep folder.
 CACHE_DIR = ".summary"
@@ -41,6 +43,36 @@ FRAGMENT = "__fragment"
 KEYS_META = b"ttc_bench_lead_keys"
 #: Kept files a summary reads before it writes the rows it used as one.
 MAX_KEPT_FILES = 8
+#: The fragments' schemas, kept by their SHA-256 (distinct schemas once, each fragment's
+#: index): the summary unifies them on every call, and reading 739 files' footers took 0.84 s.
+SCHEMAS_FILE = "schemas.pkl"
+
+
+def _kept_schemas(sweep_dir: Path) -> dict[str, pa.Schema]:
+    """The fragment schemas kept by :func:`_keep_schemas` (empty when absent or unreadable)."""
+    try:
+        with open(Path(sweep_dir) / CACHE_DIR / SCHEMAS_FILE, "rb") as handle:
+            distinct, index = pickle.load(handle)  # noqa: S301 (this folder's own cache)
+        return {sha: distinct[i] for sha, i in index.items()}
+    except (OSError, pickle.UnpicklingError, EOFError, ValueError, TypeError, IndexError,
+            AttributeError, pa.ArrowException):  # fmt: skip
+        return {}
+
+
+def _keep_schemas(sweep_dir: Path, known: dict[str, pa.Schema]) -> None:
+    """Keep ``known`` (schemas by fragment SHA-256), each distinct schema once."""
+    distinct: list[pa.Schema] = []
+    index = {}
+    for sha, schema in known.items():
+        found = next((i for i, d in enumerate(distinct) if d.equals(schema)), None)
+        if found is None:
+            distinct.append(schema)
+            found = len(distinct) - 1
+        index[sha] = found
+    with contextlib.suppress(OSError):  # a read-only sweep folder: nothing kept
+        write_bytes_atomic(
+            pickle.dumps((distinct, index)), Path(sweep_dir) / CACHE_DIR / SCHEMAS_FILE
+        )
 
 
 def _code_key(columns: list[str]) -> str:
@@ -122,7 +154,11 @@ def lead_rows(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> p
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
     frags = fragments(sweep_dir, records)
-    schema = unified_schema(frags)
+    known = _kept_schemas(sweep_dir)
+    before = len(known)
+    schema = unified_schema(frags, known)
+    if len(known) > before:
+        _keep_schemas(sweep_dir, known)
     if schema is None:
         return pd.DataFrame()
     columns = [c for c in schema.names if c not in ev.NOT_JUDGED_COLUMNS]

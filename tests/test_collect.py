@@ -143,3 +143,38 @@ def test_the_read_ahead_changes_no_row_and_hides_no_corrupt_file(tmp_path, monke
     bad.write_bytes(bad.read_bytes()[:40])
     with pytest.raises(store.StoreError, match="r017.parquet.*corrupt"):
         store.read_table(tmp_path)
+
+
+def test_fragment_schemas_are_kept_and_a_new_type_still_unifies(tmp_path, monkeypatch) -> None:
+    """The summary reads a fragment's schema once (kept by its SHA-256); a later fragment
+    whose column has a wider type still promotes the kept rows' type; an unreadable schemas
+    file is read again from the fragments."""
+    from pathlib import Path
+
+    from experiments import lead_cache, store
+    from experiments.store import dataset
+
+    reads = []
+    real = dataset.pq.read_schema
+
+    def counted(path):
+        if "runs" in Path(path).parts:  # a rows fragment's, not a kept file's
+            reads.append(path)
+        return real(path)
+
+    monkeypatch.setattr(dataset.pq, "read_schema", counted)
+
+    def add_run(run_id: str, ttc) -> None:
+        rows = pd.DataFrame({"run_id": run_id, "frame": [1, 2], "is_lead": True, "ttc_camera": ttc})
+        store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 2}, rows)
+
+    add_run("r0", [1, 2])  # int64
+    lead_cache.lead_rows(tmp_path)
+    assert len(reads) == 1
+    add_run("r1", [1.5, 2.5])  # float64: the unified type
+    rows = lead_cache.lead_rows(tmp_path)
+    assert len(reads) == 2  # r1's only
+    assert rows["ttc_camera"].tolist() == [1.0, 2.0, 1.5, 2.5]
+    (tmp_path / lead_cache.CACHE_DIR / lead_cache.SCHEMAS_FILE).write_bytes(b"not a pickle")
+    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), rows)
+    assert len(reads) == 4

@@ -97,16 +97,26 @@ def fragment_table(frag: Fragment, columns: list[str] | None = None) -> pa.Table
     )
 
 
-def unified_schema(frags: list[Fragment]) -> pa.Schema | None:
-    """One schema for every fragment (types promoted where files differ), or None."""
+def unified_schema(
+    frags: list[Fragment], known: dict[str, pa.Schema] | None = None
+) -> pa.Schema | None:
+    """One schema for every fragment (types promoted where files differ), or None.
+    ``known``: schemas already read, by the fragment's SHA-256 (a fragment never changes);
+    those read here are added to it."""
     schemas = []
     for frag in frags:
+        if known is not None and frag.sha256 in known:
+            schemas.append(known[frag.sha256])
+            continue
         try:
-            schemas.append(pq.read_schema(frag.path).remove_metadata())
+            schema = pq.read_schema(frag.path).remove_metadata()
         except (OSError, pa.ArrowException) as exc:
             raise StoreError(
                 frag.path, f"rows file corrupt ({type(exc).__name__}: {exc})"
             ) from None
+        schemas.append(schema)
+        if known is not None and frag.sha256:
+            known[frag.sha256] = schema
     return pa.unify_schemas(schemas, promote_options="permissive") if schemas else None
 
 
