@@ -26,6 +26,7 @@ import pickle
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -178,6 +179,7 @@ def lead_rows(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> p
     if len(files) > MAX_KEPT_FILES:  # one file of the rows used, the others removed
         _consolidate(sweep_dir, whole, keys, files)
     # the dataset's order: fragments as listed, each fragment's rows as computed
-    position = pc.index_in(whole[FRAGMENT], value_set=pa.array(keys))
-    order = pc.sort_indices(pa.table({"p": position}), sort_keys=[("p", "ascending")])
-    return whole.take(order).drop_columns([FRAGMENT]).to_pandas()
+    position = pc.index_in(whole[FRAGMENT], value_set=pa.array(keys)).to_numpy()
+    if len(position) > 1 and (np.diff(position) < 0).any():  # a take: 1.0 s on 504,000 rows
+        whole = whole.take(np.argsort(position, kind="stable"))
+    return whole.drop_columns([FRAGMENT]).to_pandas()
