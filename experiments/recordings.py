@@ -75,10 +75,13 @@ def _flat(tree: dict, prefix: str = "") -> dict[str, str]:
     return out
 
 
-#: The last configs :func:`config_table` flattened: (the hash of each config text → its row
-#: of the table, the table). The report asks for them in the load step, the references, the
-#: "every object" report and each page's header (``grand`` 0–18: 33,600 configs, 2.5 s a pass).
+#: The configs :func:`config_table` flattened in this process: (the hash of each config text
+#: → its row of the table, the table), rows added as new configs come. The report asks for
+#: them in the load step (each recording's runs apart), the references, the "every object"
+#: report and each page's header (``grand`` 0–18: 33,600 configs, 2.5 s a pass).
 _FLAT_CONFIGS: list[tuple[dict[int, int], pd.DataFrame]] = []
+#: Configs kept flattened at most; past it the table starts again from the configs asked for.
+FLAT_CONFIGS_KEPT = 200_000
 #: A config key's cell where the config lacks it, or has an empty dict there (no leaf).
 NO_LEAF = "{}"
 
@@ -87,14 +90,18 @@ def config_table(configs: pd.Series) -> pd.DataFrame:
     """Each stored run config (JSON text; runs.parquet ``config``) flattened (:func:`_flat`):
     one column per dotted key that one of them has, each cell the leaf's JSON text (an empty
     dict's ``{}``), NaN where a config lacks the key or is itself missing; ``configs``' index.
-    The table of the last configs is kept: when they include these (looked up by the hash of
-    each text) none is parsed again, else these are (each distinct text once)."""
+    Each distinct text is parsed once per process (looked up by its hash; up to
+    :data:`FLAT_CONFIGS_KEPT` of them kept)."""
     texts = [t if isinstance(t, str) else None for t in configs]
     rows, table = _FLAT_CONFIGS[0] if _FLAT_CONFIGS else ({}, pd.DataFrame())
-    if any(t is not None and hash(t) not in rows for t in texts):
-        distinct = list(dict.fromkeys(t for t in texts if t is not None))
-        table = pd.DataFrame([_flat(json.loads(t)) for t in distinct], dtype=object)
-        rows = {hash(t): i for i, t in enumerate(distinct)}
+    new = list(dict.fromkeys(t for t in texts if t is not None and hash(t) not in rows))
+    if new:
+        if len(rows) + len(new) > FLAT_CONFIGS_KEPT:
+            rows, table = {}, pd.DataFrame()
+            new = list(dict.fromkeys(t for t in texts if t is not None))
+        added = pd.DataFrame([_flat(json.loads(t)) for t in new], dtype=object)
+        rows = rows | {hash(t): len(rows) + i for i, t in enumerate(new)}
+        table = pd.concat([table, added], ignore_index=True) if len(table) else added
         _FLAT_CONFIGS[:] = [(rows, table)]
     at = [rows[hash(t)] if t is not None else -1 for t in texts]
     found = table.reindex(at).set_axis(configs.index)  # a missing config (-1): NaN
