@@ -24,8 +24,13 @@ from ttc.settings import SETTING_AXES, only_sensor_axes
 def recording_of(runs: pd.DataFrame) -> pd.Series:
     """The recording (``dataset.sequence``, a folder under the data root) of each run, by
     run id. Only that entry is read (:func:`config_table` flattens every entry: 0.48 s a
-    call for 980 configs, which the end-of-sweep summary made three times)."""
-    sequences = [_sequence(c) for c in runs["config"]]
+    call for 980 configs, which the end-of-sweep summary made three times), or taken from
+    the configs flattened already when each of them is."""
+    leaves = _flattened_leaves(runs["config"], "dataset.sequence")
+    if leaves is not None:
+        sequences = [_leaf_value(v) for v in leaves]
+    else:
+        sequences = [_sequence(c) for c in runs["config"]]
     return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
 
 
@@ -34,6 +39,25 @@ def _sequence(config: str) -> str:
     """``dataset.sequence`` of a run's stored config (each config text parsed once per
     process)."""
     return json.loads(config)["dataset"]["sequence"]
+
+
+@functools.lru_cache(maxsize=1 << 12)
+def _leaf_value(leaf: str) -> str:
+    """A string leaf's value from its JSON text (:func:`_leaf_text`)."""
+    return json.loads(leaf)
+
+
+def _flattened_leaves(configs: pd.Series, key: str) -> list[str] | None:
+    """Each config's leaf text at ``key`` from the configs :func:`config_table` flattened,
+    None unless every config is there with a string leaf at ``key`` (no config parsed)."""
+    if not _FLAT_CONFIGS or key not in _FLAT_CONFIGS[0][1]:
+        return None
+    rows, table = _FLAT_CONFIGS[0]
+    at = [rows.get(hash(t), -1) if isinstance(t, str) else -1 for t in configs]
+    if -1 in at:
+        return None
+    leaves = table[key].to_numpy()[at].tolist() if at else []
+    return leaves if all(isinstance(v, str) for v in leaves) else None
 
 
 def recording_source_of(runs: pd.DataFrame, run_id: str, root: Path) -> Path | BagSource:

@@ -224,3 +224,10 @@ def test_configs_flattened_once_per_process_give_each_call_its_own_table() -> No
     assert later.loc["y"].isna().all()
     assert later.loc["z", "k.tags"] == "[1, 2]"
     assert len(recordings._FLAT_CONFIGS[0][1]) == 3  # each text flattened once
+    runs = pd.DataFrame({"run_id": ["r1", "r2"], "config": [three, two]})
+    parsed = recordings._sequence.cache_info().misses
+    assert recordings.recording_of(runs).to_dict() == {"r1": "a", "r2": "b"}
+    assert recordings._sequence.cache_info().misses == parsed  # from the flattened table
+    unseen = json.dumps({"dataset": {"sequence": "c"}})
+    runs = pd.DataFrame({"run_id": ["r1", "r3"], "config": [three, unseen]})
+    assert recordings.recording_of(runs).to_dict() == {"r1": "a", "r3": "c"}
