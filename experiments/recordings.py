@@ -24,8 +24,13 @@ from ttc.settings import SETTING_AXES, only_sensor_axes
 def recording_of(runs: pd.DataFrame) -> pd.Series:
     """The recording (``dataset.sequence``, a folder under the data root) of each run, by
     run id. Only that entry is read (:func:`config_table` flattens every entry: 0.48 s a
-    call for 980 configs, which the end-of-sweep summary made three times)."""
-    sequences = [_sequence(c) for c in runs["config"]]
+    call for 980 configs, which the end-of-sweep summary made three times), or taken from
+    the configs flattened already when each of them is."""
+    leaves = _flattened_leaves(runs["config"], "dataset.sequence")
+    if leaves is not None:
+        sequences = [_leaf_value(v) for v in leaves]
+    else:
+        sequences = [_sequence(c) for c in runs["config"]]
     return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
 
 
@@ -34,6 +39,25 @@ def _sequence(config: str) -> str:
     """``dataset.sequence`` of a run's stored config (each config text parsed once per
     process)."""
     return json.loads(config)["dataset"]["sequence"]
+
+
+@functools.lru_cache(maxsize=1 << 12)
+def _leaf_value(leaf: str) -> str:
+    """A string leaf's value from its JSON text (:func:`_leaf_text`)."""
+    return json.loads(leaf)
+
+
+def _flattened_leaves(configs: pd.Series, key: str) -> list[str] | None:
+    """Each config's leaf text at ``key`` from the configs :func:`config_table` flattened,
+    None unless every config is there with a string leaf at ``key`` (no config parsed)."""
+    if not _FLAT_CONFIGS or key not in _FLAT_CONFIGS[0][1]:
+        return None
+    rows, table = _FLAT_CONFIGS[0]
+    at = [rows.get(hash(t), -1) if isinstance(t, str) else -1 for t in configs]
+    if -1 in at:
+        return None
+    leaves = table[key].to_numpy()[at].tolist() if at else []
+    return leaves if all(isinstance(v, str) for v in leaves) else None
 
 
 def recording_source_of(runs: pd.DataFrame, run_id: str, root: Path) -> Path | BagSource:
@@ -75,10 +99,13 @@ def _flat(tree: dict, prefix: str = "") -> dict[str, str]:
     return out
 
 
-#: The last configs :func:`config_table` flattened: (the hash of each config text → its row
-#: of the table, the table). The report asks for them in the load step, the references, the
-#: "every object" report and each page's header (``grand`` 0–18: 33,600 configs, 2.5 s a pass).
+#: The configs :func:`config_table` flattened in this process: (the hash of each config text
+#: → its row of the table, the table), rows added as new configs come. The report asks for
+#: them in the load step (each recording's runs apart), the references, the "every object"
+#: report and each page's header (``grand`` 0–18: 33,600 configs, 2.5 s a pass).
 _FLAT_CONFIGS: list[tuple[dict[int, int], pd.DataFrame]] = []
+#: Configs kept flattened at most; past it the table starts again from the configs asked for.
+FLAT_CONFIGS_KEPT = 200_000
 #: A config key's cell where the config lacks it, or has an empty dict there (no leaf).
 NO_LEAF = "{}"
 
@@ -87,14 +114,18 @@ def config_table(configs: pd.Series) -> pd.DataFrame:
     """Each stored run config (JSON text; runs.parquet ``config``) flattened (:func:`_flat`):
     one column per dotted key that one of them has, each cell the leaf's JSON text (an empty
     dict's ``{}``), NaN where a config lacks the key or is itself missing; ``configs``' index.
-    The table of the last configs is kept: when they include these (looked up by the hash of
-    each text) none is parsed again, else these are (each distinct text once)."""
+    Each distinct text is parsed once per process (looked up by its hash; up to
+    :data:`FLAT_CONFIGS_KEPT` of them kept)."""
     texts = [t if isinstance(t, str) else None for t in configs]
     rows, table = _FLAT_CONFIGS[0] if _FLAT_CONFIGS else ({}, pd.DataFrame())
-    if any(t is not None and hash(t) not in rows for t in texts):
-        distinct = list(dict.fromkeys(t for t in texts if t is not None))
-        table = pd.DataFrame([_flat(json.loads(t)) for t in distinct], dtype=object)
-        rows = {hash(t): i for i, t in enumerate(distinct)}
+    new = list(dict.fromkeys(t for t in texts if t is not None and hash(t) not in rows))
+    if new:
+        if len(rows) + len(new) > FLAT_CONFIGS_KEPT:
+            rows, table = {}, pd.DataFrame()
+            new = list(dict.fromkeys(t for t in texts if t is not None))
+        added = pd.DataFrame([_flat(json.loads(t)) for t in new], dtype=object)
+        rows = rows | {hash(t): len(rows) + i for i, t in enumerate(new)}
+        table = pd.concat([table, added], ignore_index=True) if len(table) else added
         _FLAT_CONFIGS[:] = [(rows, table)]
     at = [rows[hash(t)] if t is not None else -1 for t in texts]
     found = table.reindex(at).set_axis(configs.index)  # a missing config (-1): NaN

@@ -188,6 +188,44 @@ def test_the_records_index_never_hides_a_changed_record(tmp_path, monkeypatch) -
     assert store.list_records(tmp_path) == from_files()
 
 
+def test_the_records_index_reads_the_newest_index_files_until_every_record_is_found(
+    tmp_path, monkeypatch
+) -> None:
+    """An index of records since replaced (a copied sweep folder's: every file a new inode)
+    is not read once newer index files hold every record; an older index that holds a record
+    the newer ones lack is read, and no record file is parsed again."""
+    import json
+    import os
+    import pickle
+
+    from experiments.store import record_index
+
+    monkeypatch.setattr(record_index, "WRITE_AT_LEAST", 1)
+    synthetic_sweep(tmp_path)
+    index_dir = tmp_path / record_index.INDEX_DIR
+    store.list_records(tmp_path)
+    (stale,) = index_dir.glob("index-*.pkl")
+    for path in (tmp_path / store.RUNS_DIR).glob("*.json"):  # copies: new inodes
+        copy = path.with_suffix(".tmp")
+        copy.write_text(path.read_text())
+        os.replace(copy, path)
+    os.utime(stale, ns=(1, 1))
+    files = sorted((tmp_path / store.RUNS_DIR).glob("*.json"))
+    expected = [json.loads(p.read_text()) for p in files]
+    assert store.list_records(tmp_path) == expected  # each record file read: a new index
+    store.save_run(tmp_path, {"run_id": "g1", "status": "ok", "n_rows": 1}, rows_of("g1", 1, 7.0))
+    files = sorted((tmp_path / store.RUNS_DIR).glob("*.json"))
+    expected = [json.loads(p.read_text()) for p in files]
+    assert store.list_records(tmp_path) == expected and "g1" in {r["run_id"] for r in expected}
+    assert len(list(index_dir.glob("index-*.pkl"))) == 3
+    loaded, parsed = [], []
+    real_loads, real_json = pickle.loads, json.loads
+    monkeypatch.setattr(record_index.pickle, "loads", lambda b: loaded.append(1) or real_loads(b))
+    monkeypatch.setattr(record_index.json, "loads", lambda t: parsed.append(1) or real_json(t))
+    assert store.list_records(tmp_path) == expected
+    assert len(loaded) == 2 and not parsed  # g1's index, then the copies'; not the stale one
+
+
 # -- real sweeps ----------------------------------------------------------------------------
 def sweep_cmd(args: list[str], tmp: Path) -> tuple[list[str], dict[str, str]]:
     """The command line and environment of a sweep into ``<tmp>/sweeps/shared``."""

@@ -33,17 +33,32 @@ WRITE_AT_LEAST = 64
 Identity = tuple[int, int, int]
 
 
-def _load_index(sweep_dir: Path) -> dict[str, dict[Identity, dict[str, Any]]]:
-    """``{file name: {identity: record}}`` of every readable index file."""
-    known: dict[str, dict[Identity, dict[str, Any]]] = {}
-    for path in sorted((Path(sweep_dir) / INDEX_DIR).glob("index-*.pkl")):
+def _mtime(path: Path) -> int:
+    """A file's mtime (ns), 0 when it vanished (a compaction removed it)."""
+    try:
+        return path.stat().st_mtime_ns
+    except OSError:
+        return 0
+
+
+def _load_index(sweep_dir: Path, wanted: dict[str, Identity]) -> dict[str, dict[str, Any]]:
+    """``{file name: record}`` of the records ``wanted`` (file name → identity of its file now)
+    that a readable index file holds at that identity. The newest index files are read first,
+    and no more once every one is found (an index of records since replaced, as a copied
+    sweep folder's, 233 MB for ``grand`` 0–18, is then not read at all)."""
+    found: dict[str, dict[str, Any]] = {}
+    paths = sorted((Path(sweep_dir) / INDEX_DIR).glob("index-*.pkl"))
+    for path in sorted(paths, key=_mtime, reverse=True):
+        if len(found) == len(wanted):
+            break
         try:
             entries = pickle.loads(path.read_bytes())
         except Exception:  # noqa: BLE001 - damaged or vanished (compacted): read the files
             continue
         for name, (identity, record) in entries.items():
-            known.setdefault(name, {})[tuple(identity)] = record
-    return known
+            if name not in found and wanted.get(name) == tuple(identity):
+                found[name] = record
+    return found
 
 
 def write_index(sweep_dir: Path, entries: dict[str, tuple[Identity, dict[str, Any]]]) -> Path:
@@ -63,23 +78,25 @@ def list_with_identities(sweep_dir: Path) -> dict[str, tuple[Identity, dict[str,
             entries = sorted((e for e in scan if e.name.endswith(".json")), key=lambda e: e.name)
     except FileNotFoundError:
         return {}
-    known = _load_index(sweep_dir) if entries else {}
-    out: dict[str, tuple[Identity, dict[str, Any]]] = {}
-    fresh: dict[str, tuple[Identity, dict[str, Any]]] = {}
+    identities: dict[str, Identity] = {}
     for entry in entries:
         try:
             stat = entry.stat()
         except OSError:
             continue
-        identity = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
-        record = known.get(entry.name, {}).get(identity)
+        identities[entry.name] = (stat.st_ino, stat.st_size, stat.st_mtime_ns)
+    known = _load_index(sweep_dir, identities) if identities else {}
+    out: dict[str, tuple[Identity, dict[str, Any]]] = {}
+    fresh: dict[str, tuple[Identity, dict[str, Any]]] = {}
+    for name, identity in identities.items():
+        record = known.get(name)
         if record is None:
             try:
-                record = json.loads(Path(entry.path).read_text())
+                record = json.loads((runs_dir / name).read_text())
             except (OSError, ValueError):
                 continue
-            fresh[entry.name] = (identity, record)
-        out[entry.name] = (identity, record)
+            fresh[name] = (identity, record)
+        out[name] = (identity, record)
     if len(fresh) >= WRITE_AT_LEAST:
         with contextlib.suppress(OSError):
             write_index(sweep_dir, fresh)
