@@ -45,31 +45,49 @@ KEYS_META = b"ttc_bench_lead_keys"
 #: Kept files a summary reads before it writes the rows it used as one.
 MAX_KEPT_FILES = 8
 #: The fragments' schemas, kept by their SHA-256 (distinct schemas once, each fragment's
-#: index): the summary unifies them on every call, and reading 739 files' footers took 0.84 s.
+#: index and file size and time): the summary unifies them on every call, and reading 739
+#: files' footers took 0.84 s.
 SCHEMAS_FILE = "schemas.pkl"
 
 
-def _kept_schemas(sweep_dir: Path) -> dict[str, pa.Schema]:
-    """The fragment schemas kept by :func:`_keep_schemas` (empty when absent or unreadable)."""
+def _identity(path: Path) -> tuple[int, int] | None:
+    """(size, modification time in ns) of a file, None when it cannot be read."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns
+
+
+def _kept_schemas(sweep_dir: Path, frags: list[Fragment]) -> dict[str, pa.Schema]:
+    """The schemas kept by :func:`_keep_schemas` of the fragments whose file is as it was
+    when its schema was read (size, modification time), by SHA-256: a fragment changed or cut
+    since is read again (and named as corrupt). Empty when absent or unreadable."""
     try:
         with open(Path(sweep_dir) / CACHE_DIR / SCHEMAS_FILE, "rb") as handle:
             distinct, index = pickle.load(handle)  # noqa: S301 (this folder's own cache)
-        return {sha: distinct[i] for sha, i in index.items()}
+        kept = {sha: (distinct[i], tuple(seen)) for sha, (i, seen) in index.items()}
     except (OSError, pickle.UnpicklingError, EOFError, ValueError, TypeError, IndexError,
             AttributeError, pa.ArrowException):  # fmt: skip
         return {}
+    return {f.sha256: kept[f.sha256][0] for f in frags
+            if f.sha256 in kept and kept[f.sha256][1] == _identity(f.path)}  # fmt: skip
 
 
-def _keep_schemas(sweep_dir: Path, known: dict[str, pa.Schema]) -> None:
-    """Keep ``known`` (schemas by fragment SHA-256), each distinct schema once."""
+def _keep_schemas(sweep_dir: Path, known: dict[str, pa.Schema], frags: list[Fragment]) -> None:
+    """Keep ``known`` (schemas by fragment SHA-256, each distinct schema once) with each
+    fragment file's size and modification time."""
+    seen = {f.sha256: _identity(f.path) for f in frags}
     distinct: list[pa.Schema] = []
     index = {}
     for sha, schema in known.items():
+        if seen.get(sha) is None:
+            continue
         found = next((i for i, d in enumerate(distinct) if d.equals(schema)), None)
         if found is None:
             distinct.append(schema)
             found = len(distinct) - 1
-        index[sha] = found
+        index[sha] = (found, seen[sha])
     with contextlib.suppress(OSError):  # a read-only sweep folder: nothing kept
         write_bytes_atomic(
             pickle.dumps((distinct, index)), Path(sweep_dir) / CACHE_DIR / SCHEMAS_FILE
@@ -155,11 +173,11 @@ def lead_rows(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> p
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
     frags = fragments(sweep_dir, records)
-    known = _kept_schemas(sweep_dir)
+    known = _kept_schemas(sweep_dir, frags)
     before = len(known)
     schema = unified_schema(frags, known)
     if len(known) > before:
-        _keep_schemas(sweep_dir, known)
+        _keep_schemas(sweep_dir, known, frags)
     if schema is None:
         return pd.DataFrame()
     columns = [c for c in schema.names if c not in ev.NOT_JUDGED_COLUMNS]
