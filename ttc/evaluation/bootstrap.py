@@ -21,8 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ttc.evaluation.errors import NOT_JUDGED_COLUMNS
-from ttc.evaluation.metrics import judged_frames, run_metrics, unread_axes
+from ttc.evaluation.metrics import judged_frames, run_metrics, unread_columns
 from ttc.evaluation.ranking import rank_runs, ranking_time, ranks
 
 #: Replicates, confidence level and seed of the reports' rank intervals.
@@ -189,8 +188,7 @@ def bootstrap_rank_intervals(
     ``metrics``: that :func:`~ttc.evaluation.metrics.run_metrics` of ``frames`` (with the same
     thresholds) when the caller has it, for the point ranks (else computed here).
     """
-    unread = [*unread_axes(frames), *(c for c in NOT_JUDGED_COLUMNS if c in frames)]
-    t = judged_frames(frames.drop(columns=unread), reference, **thresholds)
+    t = judged_frames(frames.drop(columns=unread_columns(frames)), reference, **thresholds)
     t["ms_rank"] = ranking_time(t)
     t[f"{sensor}_approach_rel_err"] = t[f"{sensor}_rel_err"].where(t["regime"] == "approach")
 

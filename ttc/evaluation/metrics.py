@@ -94,12 +94,14 @@ def _sensor_metrics(t: pd.DataFrame, s: str) -> pd.DataFrame:
     return out
 
 
-def unread_axes(frames: pd.DataFrame) -> list[str]:
-    """The axis columns of ``frames`` that judging them does not read, left out of the copies
-    it makes (12 strings a row: 0.1 GB a copy of ``grand``'s judged rows): all of them once
-    ``ms_compute_per_frame`` is known, none without it (the computing times are then looked up
-    by the stage axes, :func:`ttc.evaluation.stage_times.compute_times`)."""
-    return [a for a in AXES if a in frames] if "ms_compute_per_frame" in frames else []
+def unread_columns(frames: pd.DataFrame) -> list[str]:
+    """The columns of ``frames`` that judging them does not read, left out of the copies it
+    makes: :data:`~ttc.evaluation.errors.NOT_JUDGED_COLUMNS`, and the axis columns (12
+    strings a row: 0.1 GB a copy of ``grand``'s judged rows) once ``ms_compute_per_frame`` is
+    known (without it the computing times are looked up by the stage axes,
+    :func:`ttc.evaluation.stage_times.compute_times`)."""
+    axes = [a for a in AXES if a in frames] if "ms_compute_per_frame" in frames else []
+    return [*(c for c in NOT_JUDGED_COLUMNS if c in frames), *axes]
 
 
 def run_metrics(
@@ -114,9 +116,8 @@ def run_metrics(
     ``outlier_rel`` is a fraction of the reference, ``false_alarm_s`` and ``warning_s``
     seconds.
     """
-    frames = frames.drop(columns=[c for c in NOT_JUDGED_COLUMNS if c in frames])  # no copy
     axis_columns = [a for a in AXES if a in frames]  # a run's axes: taken from its rows
-    t = judged_frames(frames.drop(columns=unread_axes(frames)), reference, outlier_rel,
+    t = judged_frames(frames.drop(columns=unread_columns(frames)), reference, outlier_rel,
                       false_alarm_s, warning_s)  # fmt: skip
     runs = t["run_id"]
     parts = [_sensor_metrics(t, s) for s in sensors_of(t)]
