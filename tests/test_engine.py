@@ -125,8 +125,9 @@ def test_a_frames_lidar_association_is_kept_for_the_next_runs_of_the_process(
                         lambda *a, **k: calls.append(1) or real(*a, **k))  # fmt: skip
     base = settings_from_config(composed(["dataset=kitti_raw_0009", "dataset.last=4"]))
     frames = prepared_frame_range(composed(["dataset=kitti_raw_0009", "dataset.last=4"]))
-    runs = [base, dataclasses.replace(base, keypoint_filter=dataclasses.replace(
-        base.keypoint_filter, name="zscore")), dataclasses.replace(base, lidar_shrink=0.2)]  # fmt: skip
+    zscore = dataclasses.replace(base.keypoint_filter, name="zscore")
+    runs = [base, dataclasses.replace(base, keypoint_filter=zscore),
+            dataclasses.replace(base, lidar_shrink=0.2)]  # fmt: skip
     kept = StageCache(tmp_path)
     rows = [run_settings([s], frames, kept)[0] for s in runs]  # one job each, as workers do
     assert len(calls) == 2 * 5  # frames 0-4, once per shrink

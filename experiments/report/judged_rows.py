@@ -1,9 +1,10 @@
 """A sweep's rows for a report in bounded memory: of the rows (one per run × frame pair × box
 pair) a report judges only each pair's lead row (:func:`ttc.evaluation.lead_rows`) on the
-columns it reads (:func:`read_columns`), and the matched box pairs of one run per camera setting (the "every object" report)
-on a few. The store is read a fragment at a time (:func:`experiments.store.scan_sweep`) and
-each fragment is cut to those rows at once, so no frame of every row and every column is built
-(``grand`` 0–18: 3.06 M rows, 2.4 GB as one pandas frame; docs/benchmarks.md)."""
+columns it reads (:func:`read_columns`), and the matched box pairs of one run per camera
+setting (the "every object" report) on a few. The store is read a fragment at a time
+(:func:`experiments.store.scan_sweep`) and each fragment is cut to those rows at once, so no
+frame of every row and every column is built (``grand`` 0–18: 3.06 M rows, 2.4 GB as one
+pandas frame; docs/benchmarks.md)."""
 
 from __future__ import annotations
 

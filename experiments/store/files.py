@@ -57,7 +57,8 @@ def parquet_bytes(df: pd.DataFrame | pa.Table, metadata: dict[bytes, bytes] | No
 def write_parquet_atomic(
     df: pd.DataFrame | pa.Table, path: Path, metadata: dict | None = None
 ) -> str:
-    """Write ``df`` (a frame or an Arrow table) to ``path`` as parquet, atomically; return the file's SHA-256."""
+    """Write ``df`` (a frame or an Arrow table) to ``path`` as parquet, atomically; return
+    the file's SHA-256."""
     data = parquet_bytes(df, metadata)
     write_bytes_atomic(data, path)
     return hashlib.sha256(data).hexdigest()
