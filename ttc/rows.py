@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from ttc import reasons
+from ttc.robust import median
 from ttc.settings import CACHED_STAGE_NAMES
 
 #: Column of a batch's rows (:func:`ttc.engine.runner.run_settings`): the index of the row's
@@ -160,8 +161,8 @@ def lidar_columns(
         lidar_outliers_prev=lid.outliers_prev, lidar_outliers_curr=lid.outliers_curr,
         lidar_closest_prev=float(pts_prev[:, 0].min()) if len(pts_prev) else np.nan,
         lidar_closest_curr=float(pts_curr[:, 0].min()) if len(pts_curr) else np.nan,
-        lidar_median_prev=float(np.median(pts_prev[:, 0])) if len(pts_prev) else np.nan,
-        lidar_median_curr=float(np.median(pts_curr[:, 0])) if len(pts_curr) else np.nan,
+        lidar_median_prev=float(median(pts_prev[:, 0])) if len(pts_prev) else np.nan,
+        lidar_median_curr=float(median(pts_curr[:, 0])) if len(pts_curr) else np.nan,
         ms_lidar_ttc=ms,
     )  # fmt: skip
 

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial.distance import pdist
 
 from ttc import reasons
+from ttc.robust import median
 from ttc.steps.similarity_fit import check_fit, similarity_scale
 
 #: Least previous-frame distance (pixels) of a usable pair: coincident keypoints give no ratio.
@@ -55,7 +56,7 @@ class CameraTTCParams:
 
 def median_ratio(ratios: np.ndarray) -> float:
     """Median of the distance ratios (robust to mismatched pairs)."""
-    return float(np.median(ratios))
+    return float(median(ratios))
 
 
 def mean_ratio(ratios: np.ndarray) -> float:

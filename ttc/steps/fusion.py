@@ -42,6 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ttc.robust import MAD_TO_SIGMA, median
+
 FUSION_METHODS = ("none", "kalman_cv", "kalman_ca")
 
 #: fused_reason codes and their meaning.
@@ -123,7 +125,7 @@ def robust_sd(values: np.ndarray) -> float:
     v = v[np.isfinite(v)]
     if len(v) < 3:
         return np.nan
-    return float(1.4826 * np.median(np.abs(v - np.median(v))))
+    return float(MAD_TO_SIGMA * median(np.abs(v - median(v))))
 
 
 def noise_sds(

@@ -12,10 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ttc.robust import MAD_TO_SIGMA, column_medians, median
 from ttc.steps.box_matching import points_in_rois, shrink_rois
-
-#: Scales a median absolute deviation to a Gaussian standard deviation.
-MAD_TO_SIGMA = 1.4826
 
 
 @dataclass(frozen=True)
@@ -65,7 +63,7 @@ def median_distance(
     d = displacement_lengths(prev_xy, curr_xy)
     if len(d) == 0:
         return np.ones(0, dtype=bool)
-    return d <= params.factor * np.median(d)
+    return d <= params.factor * median(d)
 
 
 def zscore(prev_xy: np.ndarray, curr_xy: np.ndarray, params: KeypointFilterParams) -> np.ndarray:
@@ -103,8 +101,8 @@ def displacement_mad(
     v = np.asarray(curr_xy, dtype=np.float64) - np.asarray(prev_xy, dtype=np.float64)
     if len(v) == 0:
         return np.ones(0, dtype=bool)
-    dev = v - np.median(v, axis=0)
-    scale = np.maximum(MAD_TO_SIGMA * np.median(np.abs(dev), axis=0), params.mad_floor)
+    dev = v - column_medians(v)
+    scale = np.maximum(MAD_TO_SIGMA * column_medians(np.abs(dev)), params.mad_floor)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(dev == 0, 0.0, dev / scale)
     return np.hypot(z[:, 0], z[:, 1]) <= params.mad_threshold

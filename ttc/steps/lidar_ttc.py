@@ -17,12 +17,11 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ttc import reasons
+from ttc import reasons, robust
 
 #: Modified z-score above which the ``median`` estimator counts a point as an outlier
-#: (Iglewicz & Hoaglin); 1.4826 scales a MAD to a Gaussian standard deviation.
+#: (Iglewicz & Hoaglin), on the MAD scaled by :data:`ttc.robust.MAD_TO_SIGMA`.
 MEDIAN_OUTLIER_Z = 3.5
-MAD_TO_SIGMA = 1.4826
 
 
 @dataclass(frozen=True)
@@ -87,9 +86,9 @@ def median(points: np.ndarray, params: LidarTTCParams) -> RearDistance:
     :data:`MEDIAN_OUTLIER_Z` (any point off the median when MAD is 0).
     """
     x = points[:, 0]
-    d = float(np.median(x))
+    d = float(robust.median(x))
     dev = np.abs(x - d)
-    scale = MAD_TO_SIGMA * float(np.median(dev))
+    scale = robust.MAD_TO_SIGMA * float(robust.median(dev))
     return RearDistance(d, int(np.count_nonzero(dev > MEDIAN_OUTLIER_Z * scale)))
 
 
