@@ -136,3 +136,38 @@ def test_a_frames_lidar_association_is_kept_for_the_next_runs_of_the_process(
         alone, _ = run_settings([s], frames, StageCache(tmp_path, memory_mb=0))
         pd.testing.assert_frame_equal(got.drop(columns=untimed), alone.drop(columns=untimed))
     assert not rows[2]["lidar_points_curr"].equals(rows[0]["lidar_points_curr"])
+
+
+def test_a_box_pairs_lidar_ttc_is_kept_for_the_other_camera_stages_of_the_process(
+    data_dir: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """Drive 0009 frames 0-4: FP.2 of a box pair reads the lidar only, so runs on other
+    detectors (other groups, other jobs) take it from the process's memory; another lidar
+    estimator computes its own; rows are those of a cache that keeps nothing in memory."""
+    from experiments.config import prepared_frame_range
+    from ttc.engine import cache as stage_cache
+    from ttc.engine import pair_steps
+
+    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())  # this test's own
+    calls = []
+    real = pair_steps.lidar_ttc
+    monkeypatch.setattr(pair_steps, "lidar_ttc", lambda *a, **k: calls.append(1) or real(*a, **k))
+    data = ["dataset=kitti_raw_0009", "dataset.last=4", "descriptor=brief"]
+    frames = prepared_frame_range(composed(data))
+    runs = [settings_from_config(composed([*data, *extra]))
+            for extra in (["detector=fast"], ["detector=orb"], ["detector=orb", "lidar_ttc=cluster"])]  # fmt: skip
+    kept = StageCache(tmp_path)
+    rows, counts = [], []
+    for s in runs:  # one job each, as workers do
+        rows.append(run_settings([s], frames, kept)[0])
+        counts.append(len(calls))
+    key = ["frame", "prev_box", "curr_box"]
+    pairs = [r.loc[r["prev_box"] >= 0, key].drop_duplicates() for r in rows]
+    assert counts[0] == len(pairs[0]) > 10
+    own = pairs[1].merge(pairs[0], on=key, how="left_anti")  # orb's box pairs fast had not
+    assert counts[1] - counts[0] == len(own) < len(pairs[1])  # the others from memory
+    assert counts[2] - counts[1] == len(pairs[2])  # another estimator: all its own
+    untimed = [c for c in rows[0] if c.startswith(("ms_", "cached_"))]
+    for s, got in zip(runs, rows, strict=True):
+        alone, _ = run_settings([s], frames, StageCache(tmp_path, memory_mb=0))
+        pd.testing.assert_frame_equal(got.drop(columns=untimed), alone.drop(columns=untimed))

@@ -166,14 +166,22 @@ class PairSteps:
             self.assoc = (uv, owners, found[self.curr].lead.lead, objects, ms)
         return self.assoc
 
+    def _lidar_name(self, i: int, s: Settings) -> tuple | None:
+        """The name frame ``i``'s lidar association is kept under in :attr:`cache`: the keys
+        of its boxes and points, the calibration and the parameters; None when there is no
+        cache or an entry has no key (then nothing derived from it is kept)."""
+        objects, lidar = self.per_frame["objects"][i].key, self.per_frame["lidar"][i].key
+        if self.cache is None or not (objects and lidar):
+            return None
+        return ("lidar_association", objects, lidar, self.calib.velo_to_image.tobytes(),
+                s.lidar_shrink, repr(s.object_lidar))  # fmt: skip
+
     def _frame_lidar(self, i: int, s: Settings) -> tuple[FrameLidar, float]:
         """Frame ``i``'s association and the ms it took to compute: computed, or kept by
         :attr:`cache` from another run of this process (named by the keys of the frame's
         boxes and points, the calibration and the parameters: it cannot go stale)."""
-        name = ("lidar_association", self.per_frame["objects"][i].key,
-                self.per_frame["lidar"][i].key, self.calib.velo_to_image.tobytes(),
-                s.lidar_shrink, repr(s.object_lidar))  # fmt: skip
-        keyed = self.cache is not None and all(name[1:3])
+        name = self._lidar_name(i, s)
+        keyed = name is not None
         if keyed and (kept := self.cache.recent(name)) is not None:
             return FrameLidar.from_arrays(kept), float(kept["ms"])
         lane, roi = self.lane[i], self.obj[i]["roi"]
@@ -241,9 +249,22 @@ class PairSteps:
         curr_box: int,
         lead_box: int,
     ) -> dict[str, Any]:
-        """FP.2 of a box pair: the lead's ego-lane points, every other box's own points."""
+        """FP.2 of a box pair: the lead's ego-lane points, every other box's own points.
+
+        It reads the two frames' lidar associations, the boxes, the interval and the
+        estimator, and no camera stage: besides this pair's memo (the settings of its group),
+        it is kept in :attr:`cache` for the other groups of this process (each
+        detector × descriptor × matcher of a ``grand`` sweep), named by the associations'
+        names (:meth:`_lidar_name`), with the time it took to compute."""
         key = (prev_box, curr_box, k["lidar_ttc"])
-        if key not in self.memo["fp2"]:
+        if key in self.memo["fp2"]:
+            return self.memo["fp2"][key]
+        names = (self._lidar_name(self.prev, s), self._lidar_name(self.curr, s))
+        name = ("fp2", *names, prev_box, curr_box, self.dt, k["lidar_ttc"])
+        keyed = None not in names
+        if keyed and (kept := self.cache.recent(name)) is not None:
+            columns = {column: value.item() for column, value in kept.items()}
+        else:
             p, c = self.prev, self.curr
             if curr_box == lead_box:
                 pts_prev = self.lane[p]["points"][owners[p] == prev_box][:, :3]
@@ -253,8 +274,11 @@ class PairSteps:
                 pts_curr = objects[c].of_box(self.lane[c]["object_points"], curr_box)[:, :3]
             dt = self.dt
             lid, ms = _timed(lambda: lidar_ttc(pts_prev, pts_curr, dt, s.lidar_ttc))
-            self.memo["fp2"][key] = lidar_columns(lid, pts_prev, pts_curr, ms)
-        return self.memo["fp2"][key]
+            columns = lidar_columns(lid, pts_prev, pts_curr, ms)
+            if keyed:
+                self.cache.keep(name, {column: np.asarray(v) for column, v in columns.items()})
+        self.memo["fp2"][key] = columns
+        return columns
 
     def _fp34(
         self,
