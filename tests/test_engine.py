@@ -90,6 +90,35 @@ def test_a_single_run_is_its_batch_members_rows(kitti_dir: Path, cache: StageCac
         run_setting(settings[-1], frames, cache)
 
 
+def test_a_setting_whose_whole_run_columns_raise_fails_alone(
+    kitti_dir: Path, cache: StageCache, monkeypatch
+) -> None:
+    """The columns made over a whole run (fused TTC, tracks) are made for a batch's members at
+    once; a member whose fusion raises fails alone, the others keep their rows and order."""
+    from ttc.engine import runner
+
+    real = runner.fused_columns
+
+    def broken(rows, params):
+        if params.name == "kalman_ca":
+            raise FloatingPointError("filter diverged")
+        return real(rows, params)
+
+    monkeypatch.setattr(runner, "fused_columns", broken)
+    overrides = [[], ["fusion=kalman_ca"], ["fusion=kalman_cv"], ["keypoint_filter=zscore"]]
+    settings = [settings_from_config(composed(o)) for o in overrides]
+    frames = FrameRange(kitti_dir, 0, 6)
+    rows, failed = run_settings(settings, frames, cache)
+    assert list(failed) == [1] and "diverged" in str(failed[1])
+    assert rows[MEMBER].tolist() == sorted(rows[MEMBER].tolist()) and 1 not in set(rows[MEMBER])
+    untimed = [c for c in rows if c.startswith(("ms_", "cached_"))]
+    for member in (0, 2, 3):
+        alone = run_setting(settings[member], frames, cache).drop(columns=untimed)
+        inside = rows[rows[MEMBER] == member].drop(columns=[*untimed, MEMBER])
+        pd.testing.assert_frame_equal(inside.reset_index(drop=True), alone)
+    assert rows.loc[rows[MEMBER] == 2, "ttc_fused"].notna().any()
+
+
 def test_pair_detail_rows_are_the_runs_rows(kitti_dir: Path, cache: StageCache) -> None:
     s = settings_from_config(composed([]))
     frames = FrameRange(kitti_dir, 0, 18)

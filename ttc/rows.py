@@ -5,7 +5,8 @@ counts, keypoint and match counts, stage times in ms, cache flags), then the box
 (:func:`box_head`: box pair, lead flag, class, confidence, box in px), then FP.2
 (:func:`lidar_columns`, distances in m, TTC in s) and FP.3/FP.4 (:func:`camera_columns`),
 then ``box_shared_matches`` and ``error``. A pair that could not be read is one
-:func:`error_row`. The fused columns are added over a whole run by :func:`ttc.steps.fusion.fuse_rows`.
+:func:`error_row`. The fused columns and the track are added over a whole run
+(:func:`ttc.engine.runner.finish_rows`).
 
 :class:`PairDetail` holds the intermediate arrays of one frame pair (for pictures and the
 report's explanations).

@@ -264,20 +264,34 @@ def _reason(x: np.ndarray, used_lidar: bool, used_camera: bool) -> str:
     return LIDAR_ONLY if used_lidar else CAMERA_ONLY if used_camera else PREDICTED
 
 
-def fuse_rows(rows: pd.DataFrame, params: FusionParams) -> pd.DataFrame:
-    """``rows`` of one run with the :data:`FUSED_COLUMNS` added.
+#: The columns of a run's rows :func:`fused_columns` reads.
+FUSION_INPUTS = ("is_lead", "frame", "dt", "d_prev", "d_curr", "camera_ratio")
+
+
+def fused_columns(rows: pd.DataFrame, params: FusionParams) -> dict[str, np.ndarray]:
+    """The :data:`FUSED_COLUMNS` of the rows of one run (N,), as arrays (N,) by name.
 
     The lead vehicle's rows (``is_lead``), in frame order, are one track through the filter;
     every other row gets NaN with reason ``not_lead``, every row NaN with reason ``off`` for
-    ``fusion=none``. Reads ``dt``, ``d_prev``, ``d_curr`` and ``camera_ratio``.
+    ``fusion=none``. Reads :data:`FUSION_INPUTS` (none of them for ``fusion=none``).
     """
-    out = rows.copy()
-    out["ttc_fused"] = np.nan
-    out["ttc_fused_sd"] = np.nan
-    out["fused_ratio"] = np.nan
-    out["fused_reason"] = OFF if params.name == "none" else NOT_LEAD
-    if params.name == "none" or len(rows) == 0:
+    n = len(rows)
+    out = {"ttc_fused": np.full(n, np.nan), "ttc_fused_sd": np.full(n, np.nan),
+           "fused_ratio": np.full(n, np.nan),
+           "fused_reason": np.full(n, OFF if params.name == "none" else NOT_LEAD, dtype=object)}  # fmt: skip
+    if params.name == "none" or n == 0:
         return out
+    lead = np.flatnonzero(rows["is_lead"].to_numpy(dtype=bool))
+    lead = lead[np.argsort(rows["frame"].to_numpy()[lead], kind="stable")]
+    column = {c: rows[c].to_numpy(dtype=float)[lead] for c in ("dt", "d_prev", "d_curr",
+                                                                "camera_ratio")}  # fmt: skip
+    track = kalman_fuse(column["dt"], column["d_curr"], column["camera_ratio"], params,
+                        lidar_d0=float(column["d_prev"][0]) if len(lead) else np.nan)  # fmt: skip
+    out["ttc_fused"][lead] = track.ttc
+    out["ttc_fused_sd"][lead] = track.ttc_sd
+    out["fused_ratio"][lead] = track.ratio
+    out["fused_reason"][lead] = track.reason.astype(str)
+    return out
     lead = rows.index[rows["is_lead"].to_numpy(dtype=bool)]
     lead = rows.loc[lead].sort_values("frame", kind="stable").index
     table = rows.loc[lead]
