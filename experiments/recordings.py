@@ -7,9 +7,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
-import sys
-from json.encoder import encode_basestring_ascii
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +14,7 @@ import pandas as pd
 
 from experiments.config import setting_hash
 from experiments.data.datasets import bag_source, recording_id
+from experiments.flat_configs import NO_LEAF, config_table, flattened_leaves, leaf_value
 from ttc.io.ros2_bag import BagSource
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
@@ -26,9 +24,9 @@ def recording_of(runs: pd.DataFrame) -> pd.Series:
     run id. Only that entry is read (:func:`config_table` flattens every entry: 0.48 s a
     call for 980 configs, which the end-of-sweep summary made three times), or taken from
     the configs flattened already when each of them is."""
-    leaves = _flattened_leaves(runs["config"], "dataset.sequence")
+    leaves = flattened_leaves(runs["config"], "dataset.sequence")
     if leaves is not None:
-        sequences = [_leaf_value(v) for v in leaves]
+        sequences = [leaf_value(v) for v in leaves]
     else:
         sequences = [_sequence(c) for c in runs["config"]]
     return pd.Series(sequences, index=runs["run_id"].to_numpy(), dtype=str)
@@ -39,25 +37,6 @@ def _sequence(config: str) -> str:
     """``dataset.sequence`` of a run's stored config (each config text parsed once per
     process)."""
     return json.loads(config)["dataset"]["sequence"]
-
-
-@functools.lru_cache(maxsize=1 << 12)
-def _leaf_value(leaf: str) -> str:
-    """A string leaf's value from its JSON text (:func:`_leaf_text`)."""
-    return json.loads(leaf)
-
-
-def _flattened_leaves(configs: pd.Series, key: str) -> list[str] | None:
-    """Each config's leaf text at ``key`` from the configs :func:`config_table` flattened,
-    None unless every config is there with a string leaf at ``key`` (no config parsed)."""
-    if not _FLAT_CONFIGS or key not in _FLAT_CONFIGS[0][1]:
-        return None
-    rows, table = _FLAT_CONFIGS[0]
-    at = [rows.get(hash(t), -1) if isinstance(t, str) else -1 for t in configs]
-    if -1 in at:
-        return None
-    leaves = table[key].to_numpy()[at].tolist() if at else []
-    return leaves if all(isinstance(v, str) for v in leaves) else None
 
 
 def recording_source_of(runs: pd.DataFrame, run_id: str, root: Path) -> Path | BagSource:
@@ -73,63 +52,6 @@ def run_ids_by_recording(runs: pd.DataFrame) -> dict[str, list[str]]:
     """The run ids of each recording (``dataset.sequence``) of ``runs``, recordings sorted."""
     recording = recording_of(runs)
     return {seq: list(recording.index[recording == seq]) for seq in sorted(set(recording))}
-
-
-def _leaf_text(value: object) -> str:
-    """``json.dumps(value, sort_keys=True)``, without building an encoder for a scalar (a
-    ``grand`` sweep's setting ids flatten 28,000 configs of 90 leaves each)."""
-    if isinstance(value, str):
-        return encode_basestring_ascii(value)
-    if value is None or isinstance(value, bool):
-        return {None: "null", True: "true", False: "false"}[value]
-    if type(value) is int or (type(value) is float and math.isfinite(value)):
-        return repr(value)
-    return json.dumps(value, sort_keys=True)
-
-
-def _flat(tree: dict, prefix: str = "") -> dict[str, str]:
-    """``{"a": {"b": 1}}`` → ``{"a.b": "1"}``: each leaf as its JSON text (lists, scalars
-    and empty dicts are leaves; keys and texts interned: a sweep's runs share them)."""
-    out: dict[str, str] = {}
-    for key, value in tree.items():
-        if isinstance(value, dict) and value:
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[sys.intern(f"{prefix}{key}")] = sys.intern(_leaf_text(value))
-    return out
-
-
-#: The configs :func:`config_table` flattened in this process: (the hash of each config text
-#: → its row of the table, the table), rows added as new configs come. The report asks for
-#: them in the load step (each recording's runs apart), the references, the "every object"
-#: report and each page's header (``grand`` 0–18: 33,600 configs, 2.5 s a pass).
-_FLAT_CONFIGS: list[tuple[dict[int, int], pd.DataFrame]] = []
-#: Configs kept flattened at most; past it the table starts again from the configs asked for.
-FLAT_CONFIGS_KEPT = 200_000
-#: A config key's cell where the config lacks it, or has an empty dict there (no leaf).
-NO_LEAF = "{}"
-
-
-def config_table(configs: pd.Series) -> pd.DataFrame:
-    """Each stored run config (JSON text; runs.parquet ``config``) flattened (:func:`_flat`):
-    one column per dotted key that one of them has, each cell the leaf's JSON text (an empty
-    dict's ``{}``), NaN where a config lacks the key or is itself missing; ``configs``' index.
-    Each distinct text is parsed once per process (looked up by its hash; up to
-    :data:`FLAT_CONFIGS_KEPT` of them kept)."""
-    texts = [t if isinstance(t, str) else None for t in configs]
-    rows, table = _FLAT_CONFIGS[0] if _FLAT_CONFIGS else ({}, pd.DataFrame())
-    new = list(dict.fromkeys(t for t in texts if t is not None and hash(t) not in rows))
-    if new:
-        if len(rows) + len(new) > FLAT_CONFIGS_KEPT:
-            rows, table = {}, pd.DataFrame()
-            new = list(dict.fromkeys(t for t in texts if t is not None))
-        added = pd.DataFrame([_flat(json.loads(t)) for t in new], dtype=object)
-        rows = rows | {hash(t): len(rows) + i for i, t in enumerate(new)}
-        table = pd.concat([table, added], ignore_index=True) if len(table) else added
-        _FLAT_CONFIGS[:] = [(rows, table)]
-    at = [rows[hash(t)] if t is not None else -1 for t in texts]
-    found = table.reindex(at).set_axis(configs.index)  # a missing config (-1): NaN
-    return found.dropna(axis=1, how="all")
 
 
 def recording_entries(runs: pd.DataFrame) -> set[str]:

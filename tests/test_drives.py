@@ -200,30 +200,30 @@ def test_a_setting_spans_recordings_where_an_options_value_is_the_recordings() -
 
 
 def test_configs_flattened_once_per_process_give_each_call_its_own_table() -> None:
-    """:func:`~experiments.recordings.config_table` keeps every config it flattened (the
+    """:func:`~experiments.flat_configs.config_table` keeps every config it flattened (the
     report asks for each recording's runs, then for all of them): a later call on other,
     overlapping or missing configs gets exactly its own keys and leaves, by its own index."""
     import json
 
-    from experiments import recordings
+    from experiments import flat_configs, recordings
 
     one = json.dumps({"dataset": {"sequence": "a"}, "k": {"z": 2.0, "tags": [1, 2]}})
     two = json.dumps({"dataset": {"sequence": "b"}, "k": {"z": 3}, "extra": {}})
     three = json.dumps({"dataset": {"sequence": "a"}, "other": "x"})
-    recordings._FLAT_CONFIGS.clear()
-    first = recordings.config_table(pd.Series([one, two], index=[10, 11]))
+    flat_configs._FLAT_CONFIGS.clear()
+    first = flat_configs.config_table(pd.Series([one, two], index=[10, 11]))
     assert first.to_dict("index") == {
         10: {"dataset.sequence": '"a"', "k.z": "2.0", "k.tags": "[1, 2]", "extra": np.nan},
         11: {"dataset.sequence": '"b"', "k.z": "3", "k.tags": np.nan, "extra": "{}"},
     }
-    later = recordings.config_table(pd.Series([three, None, one], index=["x", "y", "z"]))
+    later = flat_configs.config_table(pd.Series([three, None, one], index=["x", "y", "z"]))
     assert sorted(later.columns) == ["dataset.sequence", "k.tags", "k.z", "other"]
     assert later.loc["x"].to_dict() == {
         "dataset.sequence": '"a"', "k.tags": np.nan, "k.z": np.nan, "other": '"x"'
     }  # fmt: skip
     assert later.loc["y"].isna().all()
     assert later.loc["z", "k.tags"] == "[1, 2]"
-    assert len(recordings._FLAT_CONFIGS[0][1]) == 3  # each text flattened once
+    assert len(flat_configs._FLAT_CONFIGS[0][1]) == 3  # each text flattened once
     runs = pd.DataFrame({"run_id": ["r1", "r2"], "config": [three, two]})
     parsed = recordings._sequence.cache_info().misses
     assert recordings.recording_of(runs).to_dict() == {"r1": "a", "r2": "b"}

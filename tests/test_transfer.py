@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.recordings import _leaf_text, recording_entries, setting_of
+from experiments.flat_configs import leaf_text
+from experiments.recordings import recording_entries, setting_of
 from ttc.evaluation.transfer import (
     best_elsewhere,
     recording_agreement,
@@ -94,4 +95,4 @@ def test_a_setting_across_recordings_leaves_out_what_each_recording_fixes() -> N
 )  # fmt: skip
 def test_a_config_leaf_is_its_json_text(value) -> None:
     """Setting ids hash the leaves' text: the fast path writes exactly what json.dumps does."""
-    assert _leaf_text(value) == json.dumps(value, sort_keys=True)
+    assert leaf_text(value) == json.dumps(value, sort_keys=True)

@@ -14,8 +14,9 @@ from collections.abc import Set as AbstractSet
 import numpy as np
 import pandas as pd
 
+from experiments.flat_configs import config_table
 from experiments.identity import with_neutral_axes
-from experiments.recordings import config_table, run_ids_by_recording, setting_of
+from experiments.recordings import run_ids_by_recording, setting_of
 from experiments.tools.schema import FRAME_COLUMNS
 from ttc import evaluation as ev
 from ttc.evaluation.stage_times import group_codes

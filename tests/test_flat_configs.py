@@ -1,0 +1,84 @@
+"""A report keeps a sweep's flattened run configs (experiments.flat_configs.kept_flat_configs):
+the next report reads them back instead of parsing them, the same table; a damaged file or
+one made by other flattening code is not used; a new config rewrites the file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from experiments import flat_configs
+from experiments.flat_configs import KEPT_FILE, config_table, kept_flat_configs
+
+
+def _configs(n: int) -> pd.Series:
+    """``n`` run config texts as a sweep stores them (JSON, sorted keys)."""
+    texts = [json.dumps({"dataset": {"sequence": f"drive_{i % 3}", "last": 18},
+                         "detector": {"name": "fast", "threshold": i}, "extra": {} if i % 2 else
+                         {"tags": [i, 2]}}, sort_keys=True) for i in range(n)]  # fmt: skip
+    return pd.Series(texts, index=[f"r{i}" for i in range(n)], dtype=object)
+
+
+@pytest.fixture
+def fresh_process(monkeypatch) -> list[int]:
+    """An empty table of flattened configs; the list grows by one per config parsed."""
+    monkeypatch.setattr(flat_configs, "_FLAT_CONFIGS", [])
+    parsed: list[int] = []
+    real = flat_configs._flat
+    monkeypatch.setattr(flat_configs, "_flat",
+                        lambda tree, prefix="": (parsed.append(1) if not prefix else None)
+                        or real(tree, prefix))  # fmt: skip
+    return parsed
+
+
+def test_the_next_report_reads_the_flattened_configs_back(tmp_path: Path, fresh_process) -> None:
+    configs = _configs(12)
+    with kept_flat_configs(tmp_path, configs):
+        first = config_table(configs)
+    assert len(fresh_process) == 12 and (tmp_path / KEPT_FILE).is_file()
+    flat_configs._FLAT_CONFIGS.clear()  # another process
+    with kept_flat_configs(tmp_path, configs):
+        again = config_table(configs)
+    assert len(fresh_process) == 12  # none parsed
+    pd.testing.assert_frame_equal(again, first)
+    subset = configs.iloc[[5, 1]]
+    pd.testing.assert_frame_equal(
+        config_table(subset), first.loc[["r5", "r1"]].dropna(axis=1, how="all")
+    )
+
+
+def test_a_new_config_rewrites_the_file_and_a_bad_one_is_not_used(
+    tmp_path: Path, fresh_process, monkeypatch
+) -> None:
+    configs = _configs(6)
+    with kept_flat_configs(tmp_path, configs.iloc[:4]):
+        config_table(configs.iloc[:4])
+    flat_configs._FLAT_CONFIGS.clear()
+    with kept_flat_configs(tmp_path, configs):  # two new: parsed, and the file holds all six
+        config_table(configs)
+    assert len(fresh_process) == 4 + 2
+    assert pq.read_table(tmp_path / KEPT_FILE).num_rows == 6
+    flat_configs._FLAT_CONFIGS.clear()
+    monkeypatch.setattr(flat_configs, "_code", lambda: b"other flattening code")
+    with kept_flat_configs(tmp_path, configs):
+        config_table(configs)
+    assert len(fresh_process) == 6 + 6  # not used: parsed again, the file rewritten
+    flat_configs._FLAT_CONFIGS.clear()
+    (tmp_path / KEPT_FILE).write_bytes((tmp_path / KEPT_FILE).read_bytes()[:100])  # truncated
+    with kept_flat_configs(tmp_path, configs):
+        table = config_table(configs)
+    assert len(fresh_process) == 12 + 6 and table.loc["r3", "detector.threshold"] == "3"
+    assert pq.read_table(tmp_path / KEPT_FILE).num_rows == 6  # whole again
+
+
+def test_a_sweep_folder_it_cannot_write_is_read_without_keeping(
+    tmp_path: Path, fresh_process
+) -> None:
+    (tmp_path / KEPT_FILE.parent).write_text("a file where the folder would be")  # even as root
+    with kept_flat_configs(tmp_path, _configs(3)):
+        assert len(config_table(_configs(3))) == 3
+    assert (tmp_path / KEPT_FILE.parent).is_file()
