@@ -106,6 +106,7 @@ class PairSteps:
         self.xy_curr = self.kp_curr[:, [X, Y]]
         self.memo: dict[str, dict] = {k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base")}
         self.assoc: tuple | None = None
+        self._projection: bytes | None = None
 
     def rows(
         self, s: Settings, k: dict[str, str], member: int, detail: dict | None = None
@@ -173,8 +174,10 @@ class PairSteps:
         objects, lidar = self.per_frame["objects"][i].key, self.per_frame["lidar"][i].key
         if self.cache is None or not (objects and lidar):
             return None
-        return ("lidar_association", objects, lidar, self.calib.velo_to_image.tobytes(),
-                s.lidar_shrink, repr(s.object_lidar))  # fmt: skip
+        if self._projection is None:  # the 3 × 4 product, once per pair
+            self._projection = self.calib.velo_to_image.tobytes()
+        return ("lidar_association", objects, lidar, self._projection, s.lidar_shrink,
+                repr(s.object_lidar))  # fmt: skip
 
     def _frame_lidar(self, i: int, s: Settings) -> tuple[FrameLidar, float]:
         """Frame ``i``'s association and the ms it took to compute: computed, or kept by
