@@ -4,7 +4,7 @@ The report and the summary read a few entries of every run's config (its recordi
 setting without the recording); parsing and flattening a ``grand`` sweep's 33,600 configs
 takes 5 s. :func:`config_table` flattens each distinct text once per process, and a report
 keeps a sweep's flattened configs in ``<sweep>/.configs/flat.parquet``
-(:func:`kept_flat_configs`, each row under its text's BLAKE2b digest and the flattening
+(:func:`flatten_kept`, each row under its text's BLAKE2b digest and the flattening
 code's): the next report reads them back (0.5 s for those 33,600). Deleting ``.configs/`` is
 always safe.
 """
@@ -18,7 +18,6 @@ import inspect
 import json
 import math
 import sys
-from collections.abc import Iterator
 from json.encoder import encode_basestring_ascii
 from pathlib import Path
 
@@ -31,7 +30,7 @@ from experiments.store.files import write_parquet_atomic
 NO_LEAF = "{}"
 #: Configs kept flattened at most; past it the table starts again from the configs asked for.
 FLAT_CONFIGS_KEPT = 200_000
-#: A sweep's configs flattened by a report, under the sweep folder (:func:`kept_flat_configs`).
+#: A sweep's configs flattened by a report, under the sweep folder (:func:`flatten_kept`).
 KEPT_FILE = Path(".configs") / "flat.parquet"
 #: The kept file's column of each config text's digest (:func:`_digest`).
 DIGEST = "__digest"
@@ -128,6 +127,11 @@ def _code() -> bytes:
     return hashlib.sha256(source.encode()).hexdigest().encode()
 
 
+def _leaf_columns(path: Path) -> list[str]:
+    """The kept file's leaf columns (every column but :data:`DIGEST`)."""
+    return [name for name in pq.read_schema(path).names if name != DIGEST]
+
+
 def _read_kept(path: Path, missing: dict[str, str]) -> set[str]:
     """The digests the kept file ``path`` holds; the configs of ``missing`` (digest → text,
     none in the process's table) it holds are added to the process's table. A file that
@@ -139,32 +143,31 @@ def _read_kept(path: Path, missing: dict[str, str]) -> set[str]:
         held = set(digests.column(DIGEST).to_pylist())
         if not held & missing.keys():
             return held
-        table = pq.read_table(path).to_pandas()
+        table = pq.read_table(path, read_dictionary=_leaf_columns(path)).to_pandas()
     except (OSError, ValueError, KeyError):  # absent, truncated, not parquet, no digests
         return set()
     table = table[table[DIGEST].isin(missing)].drop_duplicates(DIGEST)
+    # from the categories: equal leaves one string object, as parsing interns them (a new
+    # string per cell held 160 MB more for grand's 40,320 configs)
     leaves = table.drop(columns=DIGEST).astype(object).dropna(axis=1, how="all")
     _add([missing[d] for d in table[DIGEST]], leaves.reset_index(drop=True))
     return held
 
 
-@contextlib.contextmanager
-def kept_flat_configs(sweep_dir: Path, configs: pd.Series) -> Iterator[None]:
-    """While the body runs, the ``configs`` of a sweep (its runs' config texts) that an
-    earlier report kept flattened are in the process's table, read from
-    ``<sweep_dir>/`` :data:`KEPT_FILE` instead of parsed; after it (unless it raised), when
-    the file lacks some, every one of ``configs`` is kept flattened there (the file replaced
-    atomically; not when the folder is read-only)."""
+def flatten_kept(sweep_dir: Path, configs: pd.Series) -> None:
+    """Put every one of ``configs`` (a sweep's runs' config texts) in the process's table:
+    those an earlier report kept flattened read from ``<sweep_dir>/`` :data:`KEPT_FILE`, the
+    others parsed; when the file lacks some, it is replaced (atomically) by one of all of them
+    (not when the folder is read-only). A report calls it first, while it holds little."""
     path = Path(sweep_dir) / KEPT_FILE
     rows = _FLAT_CONFIGS[0][0] if _FLAT_CONFIGS else {}
     texts = list(dict.fromkeys(t for t in configs if isinstance(t, str)))
     digests = [_digest(t) for t in texts]
     missing = {d: t for d, t in zip(digests, texts, strict=True) if hash(t) not in rows}
     held = _read_kept(path, missing)
-    yield
+    table = config_table(pd.Series(texts, dtype=object))  # the others parsed
     if held.issuperset(digests):
         return
-    table = config_table(pd.Series(texts, dtype=object)).reset_index(drop=True)
-    table[DIGEST] = digests
+    table = table.reset_index(drop=True).assign(**{DIGEST: digests})
     with contextlib.suppress(OSError):
         write_parquet_atomic(table, path, {CODE_META: _code()})

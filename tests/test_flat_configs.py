@@ -1,4 +1,4 @@
-"""A report keeps a sweep's flattened run configs (experiments.flat_configs.kept_flat_configs):
+"""A report keeps a sweep's flattened run configs (experiments.flat_configs.flatten_kept):
 the next report reads them back instead of parsing them, the same table; a damaged file or
 one made by other flattening code is not used; a new config rewrites the file."""
 
@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from experiments import flat_configs
-from experiments.flat_configs import KEPT_FILE, config_table, kept_flat_configs
+from experiments.flat_configs import KEPT_FILE, config_table, flatten_kept
 
 
 def _configs(n: int) -> pd.Series:
@@ -37,40 +37,36 @@ def fresh_process(monkeypatch) -> list[int]:
 
 def test_the_next_report_reads_the_flattened_configs_back(tmp_path: Path, fresh_process) -> None:
     configs = _configs(12)
-    with kept_flat_configs(tmp_path, configs):
-        first = config_table(configs)
+    flatten_kept(tmp_path, configs)
+    first = config_table(configs)
     assert len(fresh_process) == 12 and (tmp_path / KEPT_FILE).is_file()
     flat_configs._FLAT_CONFIGS.clear()  # another process
-    with kept_flat_configs(tmp_path, configs):
-        again = config_table(configs)
+    flatten_kept(tmp_path, configs)
+    again = config_table(configs)
     assert len(fresh_process) == 12  # none parsed
     pd.testing.assert_frame_equal(again, first)
     subset = configs.iloc[[5, 1]]
-    pd.testing.assert_frame_equal(
-        config_table(subset), first.loc[["r5", "r1"]].dropna(axis=1, how="all")
-    )
+    want = first.loc[["r5", "r1"]].dropna(axis=1, how="all")
+    pd.testing.assert_frame_equal(config_table(subset), want)
 
 
 def test_a_new_config_rewrites_the_file_and_a_bad_one_is_not_used(
     tmp_path: Path, fresh_process, monkeypatch
 ) -> None:
     configs = _configs(6)
-    with kept_flat_configs(tmp_path, configs.iloc[:4]):
-        config_table(configs.iloc[:4])
+    flatten_kept(tmp_path, configs.iloc[:4])
     flat_configs._FLAT_CONFIGS.clear()
-    with kept_flat_configs(tmp_path, configs):  # two new: parsed, and the file holds all six
-        config_table(configs)
+    flatten_kept(tmp_path, configs)  # two new: parsed, and the file holds all six
     assert len(fresh_process) == 4 + 2
     assert pq.read_table(tmp_path / KEPT_FILE).num_rows == 6
     flat_configs._FLAT_CONFIGS.clear()
     monkeypatch.setattr(flat_configs, "_code", lambda: b"other flattening code")
-    with kept_flat_configs(tmp_path, configs):
-        config_table(configs)
+    flatten_kept(tmp_path, configs)
     assert len(fresh_process) == 6 + 6  # not used: parsed again, the file rewritten
     flat_configs._FLAT_CONFIGS.clear()
     (tmp_path / KEPT_FILE).write_bytes((tmp_path / KEPT_FILE).read_bytes()[:100])  # truncated
-    with kept_flat_configs(tmp_path, configs):
-        table = config_table(configs)
+    flatten_kept(tmp_path, configs)
+    table = config_table(configs)
     assert len(fresh_process) == 12 + 6 and table.loc["r3", "detector.threshold"] == "3"
     assert pq.read_table(tmp_path / KEPT_FILE).num_rows == 6  # whole again
 
@@ -79,6 +75,6 @@ def test_a_sweep_folder_it_cannot_write_is_read_without_keeping(
     tmp_path: Path, fresh_process
 ) -> None:
     (tmp_path / KEPT_FILE.parent).write_text("a file where the folder would be")  # even as root
-    with kept_flat_configs(tmp_path, _configs(3)):
-        assert len(config_table(_configs(3))) == 3
+    flatten_kept(tmp_path, _configs(3))
+    assert len(config_table(_configs(3))) == 3 and len(fresh_process) == 3
     assert (tmp_path / KEPT_FILE.parent).is_file()

@@ -24,7 +24,7 @@ from experiments.config import (
     with_neutral_options,
 )
 from experiments.data.first_run import ensure_model_files
-from experiments.flat_configs import kept_flat_configs
+from experiments.flat_configs import flatten_kept
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
 from experiments.report import judged_rows
@@ -98,8 +98,8 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         known = runs["run_id"].isin(seen)
         repeated += int(known.sum())
         runs = runs[~known].assign(sweep_dir=str(d.resolve()))
-        with kept_flat_configs(d, runs["config"]):  # flattened by an earlier report
-            lead, boxes, sweep_counts = judged_rows.read_rows(parts, runs)
+        flatten_kept(d, runs["config"])  # those an earlier report flattened read back
+        lead, boxes, sweep_counts = judged_rows.read_rows(parts, runs)
         if not lead.empty:
             lead_parts.append(lead)
             box_parts.append(boxes)
