@@ -129,28 +129,20 @@ def finish_rows(
     if (np.diff(order) < 0).any():  # each member's rows together, members as first seen
         rows = rows.take(order).reset_index(drop=True)
         at = rows.groupby(MEMBER, sort=False).indices
-    n = len(rows)
-    added = {"ttc_fused": np.full(n, np.nan), "ttc_fused_sd": np.full(n, np.nan),
-             "fused_ratio": np.full(n, np.nan), "fused_reason": np.empty(n, dtype=object),
-             TRACK_ID: np.zeros(n, dtype=np.int64)}  # fmt: skip
     inputs = rows[[c for c in FUSION_INPUTS if c in rows]]
     boxes = [rows[c].to_numpy() for c in ("prev_frame", "frame", "prev_box", "curr_box")]
-    kept = np.ones(n, dtype=bool)
-    for member, where in at.items():
+    kept, added = np.ones(len(rows), dtype=bool), []
+    for member, where in at.items():  # the members' rows, one block after the other
         try:
             fused = fused_columns(inputs.iloc[where], settings[member].fusion)
-            tracks = chain_tracks(*(column[where] for column in boxes))
+            added.append({**fused, TRACK_ID: chain_tracks(*(c[where] for c in boxes))})
         except Exception as exc:  # a setting that raises costs only itself
             failed[member] = exc
             kept[where] = False
-            continue
-        for name, values in fused.items():
-            added[name][where] = values
-        added[TRACK_ID][where] = tracks
-    if not kept.any():
+    if not added:
         return pd.DataFrame()
-    out = rows.assign(**added)
-    return out if kept.all() else out[kept].reset_index(drop=True)
+    columns = {name: np.concatenate([a[name] for a in added]) for name in added[0]}
+    return (rows if kept.all() else rows[kept].reset_index(drop=True)).assign(**columns)
 
 
 def run_setting(
