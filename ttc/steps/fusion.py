@@ -276,9 +276,9 @@ def fused_columns(rows: pd.DataFrame, params: FusionParams) -> dict[str, np.ndar
     ``fusion=none``. Reads :data:`FUSION_INPUTS` (none of them for ``fusion=none``).
     """
     n = len(rows)
-    out = {"ttc_fused": np.full(n, np.nan), "ttc_fused_sd": np.full(n, np.nan),
-           "fused_ratio": np.full(n, np.nan),
-           "fused_reason": np.full(n, OFF if params.name == "none" else NOT_LEAD, dtype=object)}  # fmt: skip
+    ttc, ttc_sd, ratio, reason = FUSED_COLUMNS
+    out = {ttc: np.full(n, np.nan), ttc_sd: np.full(n, np.nan), ratio: np.full(n, np.nan),
+           reason: np.full(n, OFF if params.name == "none" else NOT_LEAD, dtype=object)}  # fmt: skip
     if params.name == "none" or n == 0:
         return out
     lead = np.flatnonzero(rows["is_lead"].to_numpy(dtype=bool))
@@ -287,23 +287,6 @@ def fused_columns(rows: pd.DataFrame, params: FusionParams) -> dict[str, np.ndar
                                                                 "camera_ratio")}  # fmt: skip
     track = kalman_fuse(column["dt"], column["d_curr"], column["camera_ratio"], params,
                         lidar_d0=float(column["d_prev"][0]) if len(lead) else np.nan)  # fmt: skip
-    out["ttc_fused"][lead] = track.ttc
-    out["ttc_fused_sd"][lead] = track.ttc_sd
-    out["fused_ratio"][lead] = track.ratio
-    out["fused_reason"][lead] = track.reason.astype(str)
-    return out
-    lead = rows.index[rows["is_lead"].to_numpy(dtype=bool)]
-    lead = rows.loc[lead].sort_values("frame", kind="stable").index
-    table = rows.loc[lead]
-    track = kalman_fuse(
-        table["dt"].to_numpy(dtype=float),
-        table["d_curr"].to_numpy(dtype=float),
-        table["camera_ratio"].to_numpy(dtype=float),
-        params,
-        lidar_d0=float(table["d_prev"].iloc[0]) if len(table) else np.nan,
-    )
-    out.loc[lead, "ttc_fused"] = track.ttc
-    out.loc[lead, "ttc_fused_sd"] = track.ttc_sd
-    out.loc[lead, "fused_ratio"] = track.ratio
-    out.loc[lead, "fused_reason"] = track.reason.astype(str)
+    out[ttc][lead], out[ttc_sd][lead], out[ratio][lead] = track.ttc, track.ttc_sd, track.ratio
+    out[reason][lead] = track.reason.astype(str)
     return out
