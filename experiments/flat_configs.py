@@ -164,10 +164,9 @@ def flatten_kept(sweep_dir: Path, configs: pd.Series) -> None:
     texts = list(dict.fromkeys(t for t in configs if isinstance(t, str)))
     digests = [_digest(t) for t in texts]
     missing = {d: t for d, t in zip(digests, texts, strict=True) if hash(t) not in rows}
-    held = _read_kept(path, missing)
-    table = config_table(pd.Series(texts, dtype=object))  # the others parsed
-    if held.issuperset(digests):
+    if _read_kept(path, missing).issuperset(digests):  # every one now in the process's table
         return
-    table = table.reset_index(drop=True).assign(**{DIGEST: digests})
+    table = config_table(pd.Series(texts, dtype=object)).reset_index(drop=True)  # others parsed
+    table[DIGEST] = digests
     with contextlib.suppress(OSError):
         write_parquet_atomic(table, path, {CODE_META: _code()})

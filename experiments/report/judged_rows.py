@@ -14,7 +14,6 @@ from collections.abc import Set as AbstractSet
 import numpy as np
 import pandas as pd
 
-from experiments.flat_configs import config_table
 from experiments.identity import with_neutral_axes
 from experiments.recordings import run_ids_by_recording, setting_of
 from experiments.tools.schema import FRAME_COLUMNS
@@ -111,7 +110,6 @@ def box_runs(runs: pd.DataFrame) -> set[str]:
     each recording."""
     if runs.empty:
         return set()
-    config_table(runs["config"])  # every config flattened once, its recording read there
     by_recording = run_ids_by_recording(runs).values()
     return {i for ids in by_recording for i in camera_runs(runs[runs["run_id"].isin(ids)]).index}
 

@@ -98,7 +98,9 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         known = runs["run_id"].isin(seen)
         repeated += int(known.sum())
         runs = runs[~known].assign(sweep_dir=str(d.resolve()))
-        flatten_kept(d, runs["config"])  # those an earlier report flattened read back
+        # every config flattened once (those an earlier report flattened read back): the
+        # recordings, setting ids and headers below read them
+        flatten_kept(d, runs["config"])
         lead, boxes, sweep_counts = judged_rows.read_rows(parts, runs)
         if not lead.empty:
             lead_parts.append(lead)

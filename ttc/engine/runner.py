@@ -12,7 +12,7 @@ piece              shared by the settings with the same
 selection          selector
 lidar association  boxes, points, shrink: a frame once per process (its runs)
 FP.1               selector, box matching
-FP.2               box pair, lidar estimator
+FP.2               box pair, lidar estimator (once per process)
 FP.3               selector, box, box-matching shrink, keypoint filter
 FP.4               the FP.3 result, camera estimator
 =================  ==========================================================
