@@ -196,8 +196,19 @@ def lead_rows(sweep_dir: Path, records: list[dict[str, Any]] | None = None) -> p
     whole = pa.concat_tables(tables, promote_options="permissive")
     if len(files) > MAX_KEPT_FILES:  # one file of the rows used, the others removed
         _consolidate(sweep_dir, whole, keys, files)
-    # the dataset's order: fragments as listed, each fragment's rows as computed
-    position = pc.index_in(whole[FRAGMENT], value_set=pa.array(keys)).to_numpy()
-    if len(position) > 1 and (np.diff(position) < 0).any():  # a take: 1.0 s on 504,000 rows
-        whole = whole.take(np.argsort(position, kind="stable"))
-    return whole.drop_columns([FRAGMENT]).to_pandas()
+    return in_fragment_order(whole, keys).drop_columns([FRAGMENT]).to_pandas()
+
+
+def in_fragment_order(table: pa.Table, keys: list[str]) -> pa.Table:
+    """``table``'s rows in the dataset's order: grouped by their :data:`FRAGMENT` key in the
+    order of ``keys``, each fragment's rows in their order in ``table`` (a stable sort by key
+    position). A fragment's rows lie in runs of consecutive rows, so the table is cut into
+    those runs (zero-copy slices) and put together again: a row-wise take of ``grand`` 0–18's
+    604,800 lead rows (58 columns, 15 of them strings) took 1.2 s."""
+    position = pc.index_in(table[FRAGMENT], value_set=pa.array(keys)).to_numpy()
+    if len(position) < 2 or not (np.diff(position) < 0).any():
+        return table
+    starts = np.flatnonzero(np.r_[True, np.diff(position) != 0])
+    ends = np.r_[starts[1:], len(position)]
+    order = np.argsort(position[starts], kind="stable")  # runs by key position, stable
+    return pa.concat_tables([table.slice(starts[i], ends[i] - starts[i]) for i in order])

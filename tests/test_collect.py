@@ -178,3 +178,26 @@ def test_fragment_schemas_are_kept_and_a_new_type_still_unifies(tmp_path, monkey
     (tmp_path / lead_cache.CACHE_DIR / lead_cache.SCHEMAS_FILE).write_bytes(b"not a pickle")
     pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), rows)
     assert len(reads) == 4
+
+
+def test_kept_lead_rows_come_back_in_the_datasets_fragment_order() -> None:
+    """:func:`experiments.lead_cache.in_fragment_order` (slices of the runs of equal keys) is
+    the stable sort of the rows by their key's position, also where a key's rows are split
+    into several runs, on random tables."""
+    import numpy as np
+    import pyarrow as pa
+
+    from experiments import lead_cache
+
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        keys = [f"f{i}" for i in range(rng.integers(1, 7))]
+        n = int(rng.integers(1, 50))
+        names = rng.choice(keys, size=n)
+        table = pa.table({lead_cache.FRAGMENT: names, "row": np.arange(n),
+                          "text": [f"r{i}" for i in range(n)]})  # fmt: skip
+        order = list(rng.permutation(keys))
+        expected = np.argsort([order.index(k) for k in names], kind="stable")
+        got = lead_cache.in_fragment_order(table, order)
+        np.testing.assert_array_equal(got["row"].to_numpy(), expected)
+        assert got["text"].to_pylist() == [f"r{i}" for i in expected]
