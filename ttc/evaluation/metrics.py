@@ -52,13 +52,14 @@ def judged_frames(
     return frame_errors(lead, outlier_rel, false_alarm_s, warning_s)
 
 
-def _jitter(per_frame: pd.DataFrame, sensor: str) -> pd.Series:
-    """Median |change| (s) between consecutive finite TTCs of each run (frame order)."""
+def _jitter(per_frame: pd.DataFrame, sensor: str, runs: pd.Series) -> pd.Series:
+    """Median |change| (s) between consecutive finite TTCs of each run (frame order), by
+    ``runs`` (each row's run code, :func:`_run_codes`)."""
     col = f"ttc_{sensor}"
-    finite = per_frame.loc[np.isfinite(per_frame[col]), ["run_id", "frame", col]]
-    finite = finite.sort_values(["run_id", "frame"])
-    change = finite.groupby("run_id")[col].diff().abs()
-    return change.groupby(finite["run_id"]).median()
+    finite = per_frame.loc[np.isfinite(per_frame[col]), ["frame", col]].assign(run=runs)
+    finite = finite.sort_values(["run", "frame"])
+    change = finite.groupby("run")[col].diff().abs()
+    return change.groupby(finite["run"]).median()
 
 
 def _share(hit: pd.Series, among: pd.Series, runs: pd.Series) -> pd.Series:
@@ -67,9 +68,9 @@ def _share(hit: pd.Series, among: pd.Series, runs: pd.Series) -> pd.Series:
     return (counts["hit"] / counts["among"].where(counts["among"] > 0)).astype(float)
 
 
-def _sensor_metrics(t: pd.DataFrame, s: str) -> pd.DataFrame:
-    """The metrics of sensor ``s`` (module docstring), one row per run of ``t``."""
-    runs = t["run_id"]
+def _sensor_metrics(t: pd.DataFrame, s: str, runs: pd.Series) -> pd.DataFrame:
+    """The metrics of sensor ``s`` (module docstring), one row per run of ``t`` (by ``runs``,
+    each row's run code)."""
     mid = t[f"{s}_mid"]
     approach = t["regime"] == "approach"
     out = pd.DataFrame(
@@ -90,8 +91,22 @@ def _sensor_metrics(t: pd.DataFrame, s: str) -> pd.DataFrame:
             f"{s}_warn_recall": _share(t[f"{s}_warns"], t["ref_warns"], runs),
         }
     )
-    out[f"{s}_jitter_s"] = _jitter(t, s)
+    out[f"{s}_jitter_s"] = _jitter(t, s, runs)
     return out
+
+
+def _run_codes(run_ids: pd.Series) -> tuple[pd.Series, pd.Index]:
+    """(each row's run as an integer code, ``run_ids``' index; the run id of each code,
+    sorted). The metrics group by the codes: grouping by the ids themselves factorises the
+    strings again for each of ≈ 115 aggregations (0.77 s on ``grand`` 0–18's 604,800 lead
+    rows); codes sorted as the ids keep every group in the order it had."""
+    codes, uniques = pd.factorize(run_ids, sort=True)
+    return pd.Series(codes, index=run_ids.index, name="run"), pd.Index(uniques, name="run_id")
+
+
+def _named(table: pd.DataFrame, run_ids: pd.Index) -> pd.DataFrame:
+    """``table`` (indexed by run code) indexed by run id."""
+    return table.set_axis(run_ids.take(table.index.to_numpy()), axis=0)
 
 
 def unread_columns(frames: pd.DataFrame) -> list[str]:
@@ -119,8 +134,8 @@ def run_metrics(
     axis_columns = [a for a in AXES if a in frames]  # a run's axes: taken from its rows
     t = judged_frames(frames.drop(columns=unread_columns(frames)), reference, outlier_rel,
                       false_alarm_s, warning_s)  # fmt: skip
-    runs = t["run_id"]
-    parts = [_sensor_metrics(t, s) for s in sensors_of(t)]
+    runs, run_ids = _run_codes(t["run_id"])
+    parts = [_sensor_metrics(t, s, runs) for s in sensors_of(t)]
     finite_ref = np.isfinite(t["ttc_ref_s"]) & (t["ttc_ref_s"] > 0)
     totals = pd.DataFrame(
         {
@@ -134,5 +149,5 @@ def run_metrics(
     unknown = t["ms_compute_per_frame"].isna().groupby(runs).any()
     totals.loc[unknown, "ms_compute_per_frame"] = np.nan
     axes = frames.groupby("run_id")[axis_columns].first()
-    metrics = axes.join(parts).join(totals)
+    metrics = axes.join([_named(p, run_ids) for p in parts]).join(_named(totals, run_ids))
     return metrics.rename_axis("run_id").reset_index()
