@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -170,6 +171,7 @@ def test_the_records_index_never_hides_a_changed_record(tmp_path, monkeypatch) -
 
     monkeypatch.setattr(record_index, "WRITE_AT_LEAST", 1)
     synthetic_sweep(tmp_path)
+    shutil.rmtree(tmp_path / record_index.INDEX_DIR)  # the listing's own index files only
 
     def from_files() -> list[dict]:
         files = sorted((tmp_path / store.RUNS_DIR).glob("*.json"))
@@ -203,6 +205,7 @@ def test_the_records_index_reads_the_newest_index_files_until_every_record_is_fo
     monkeypatch.setattr(record_index, "WRITE_AT_LEAST", 1)
     synthetic_sweep(tmp_path)
     index_dir = tmp_path / record_index.INDEX_DIR
+    shutil.rmtree(index_dir)  # the listing's own index files only
     store.list_records(tmp_path)
     (stale,) = index_dir.glob("index-*.pkl")
     for path in (tmp_path / store.RUNS_DIR).glob("*.json"):  # copies: new inodes
@@ -224,6 +227,44 @@ def test_the_records_index_reads_the_newest_index_files_until_every_record_is_fo
     monkeypatch.setattr(record_index.json, "loads", lambda t: parsed.append(1) or real_json(t))
     assert store.list_records(tmp_path) == expected
     assert len(loaded) == 2 and not parsed  # g1's index, then the copies'; not the stale one
+
+
+def test_the_records_the_store_writes_are_listed_without_parsing_their_files(
+    tmp_path, monkeypatch
+) -> None:
+    """A batch's records (and the plan's skipped ones, the same writer) come with an index
+    file made as they are written: the next listing parses none of them and gives exactly
+    what the files hold (JSON round trip: a tuple a list, a path a string); a record another
+    writer replaced since is read from its file; with the index folder read-only the batch is
+    stored all the same."""
+    import json
+
+    from experiments.store import record_index
+
+    odd = {"run_id": "a1", "status": "ok", "n_rows": 3, "pair": (1, 2), "where": tmp_path}
+    store.save_batch(tmp_path, "batch-a", [odd, record("a2", 2)],
+                     pd.concat([rows_of("a1", 3, 10.0), rows_of("a2", 2, 20.0)]))  # fmt: skip
+    files = sorted((tmp_path / store.RUNS_DIR).glob("*.json"))
+    expected = [json.loads(p.read_text()) for p in files]
+    assert expected[0]["pair"] == [1, 2] and expected[0]["where"] == str(tmp_path)
+    real_json, parsed = json.loads, []
+    monkeypatch.setattr(record_index.json, "loads", lambda t: parsed.append(1) or real_json(t))
+    assert store.list_records(tmp_path) == expected and not parsed
+    # another writer replaces a2's record (a new file): read from the file, a1 from the index
+    store.write_json_atomic({**expected[1], "status": "failed"}, files[1], indent=None)
+    listed = store.list_records(tmp_path)
+    assert [r["status"] for r in listed] == ["ok", "failed"] and len(parsed) == 1
+    monkeypatch.undo()
+    index_dir = tmp_path / record_index.INDEX_DIR
+    before = sorted(index_dir.iterdir())
+    monkeypatch.setattr(store.files, "write_index", _raise_oserror)
+    store.save_batch(tmp_path, "batch-b", [record("b1", 2)], rows_of("b1", 2, 30.0))
+    assert sorted(index_dir.iterdir()) == before
+    assert [r["run_id"] for r in store.list_records(tmp_path)] == ["a1", "a2", "b1"]
+
+
+def _raise_oserror(*_args, **_kwargs):
+    raise OSError(28, "No space left on device")
 
 
 # -- real sweeps ----------------------------------------------------------------------------

@@ -62,6 +62,7 @@ from experiments.store.files import (
     NO_RECORD,
     RUNS_DIR,
     StoreError,
+    keep_index,
     parquet_bytes,
     read_record,
     read_rows,
@@ -72,6 +73,7 @@ from experiments.store.files import (
     store_lock,
     write_json_atomic,
     write_parquet_atomic,
+    write_record,
 )
 from experiments.store.record_index import list_records
 
@@ -93,6 +95,8 @@ __all__ = [
     "parquet_bytes",
     "write_parquet_atomic",
     "write_json_atomic",
+    "write_record",
+    "keep_index",
     "run_paths",
     "rows_path",
     "read_record",

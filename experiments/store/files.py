@@ -8,7 +8,8 @@ import hashlib
 import io
 import json
 import os
-from collections.abc import Iterator
+import pickle
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,13 @@ LEGACY_MERGED_FILES = ("frames.parquet", "runs.parquet")
 #: Held shared while a process stores runs, exclusive while a compaction repoints records.
 STORE_LOCK = ".store.lock"
 COMPLETE_STATUSES = ("ok", "skipped")
+#: Folder of the run records' index files, under the sweep folder
+#: (:mod:`experiments.store.record_index`).
+INDEX_DIR = ".records"
+#: A record file's identity: (inode, size, mtime in ns).
+Identity = tuple[int, int, int]
+#: A record as an index file keeps it: file name → (its file's identity, the record).
+IndexEntries = dict[str, tuple[Identity, dict[str, Any]]]
 #: :func:`incomplete_reason` of a run never computed in this sweep folder.
 NO_RECORD = "no record"
 
@@ -69,6 +77,50 @@ def write_json_atomic(obj: Any, path: Path, indent: int | None = 1) -> None:
     several times faster: records of batches and plans)."""
     text = json.dumps(obj, indent=indent, default=str)
     atomic_write(path, lambda tmp: tmp.write_text(text))
+
+
+def write_record(sweep_dir: Path, record: dict[str, Any]) -> IndexEntries:
+    """Write a run's record (``runs/<run_id>.json``, one line, atomically); its index entry:
+    the identity of the file written (taken from the temporary file before the rename, which
+    keeps inode, size and mtime: a writer that replaces it after that gives another identity)
+    and the record as the file reads back (a JSON round trip: what a listing would parse)."""
+    text = json.dumps(record, default=str)
+    path = run_paths(sweep_dir, record["run_id"])[1]
+    stats: list[os.stat_result] = []
+
+    def write(tmp: Path) -> None:
+        tmp.write_text(text)
+        stats.append(tmp.stat())
+
+    atomic_write(path, write)
+    st = stats[0]
+    return {path.name: ((st.st_ino, st.st_size, st.st_mtime_ns), json.loads(text))}
+
+
+def write_index(sweep_dir: Path, entries: IndexEntries) -> Path:
+    """Write ``entries`` as a new index file of records
+    (``<sweep>/.records/index-<sha>.pkl``, never rewritten); its path."""
+    data = pickle.dumps(entries, protocol=pickle.HIGHEST_PROTOCOL)
+    name = f"index-{hashlib.sha256(data).hexdigest()[:16]}.pkl"
+    return write_bytes_atomic(data, Path(sweep_dir) / INDEX_DIR / name)
+
+
+def save_records(sweep_dir: Path, records: Iterable[dict[str, Any]]) -> None:
+    """Write each record (:func:`write_record`), then one index file of them, so that the
+    next listing parses none of these files (an index that cannot be written is left out:
+    the files are the authority)."""
+    entries: IndexEntries = {}
+    for record in records:
+        entries.update(write_record(sweep_dir, record))
+    keep_index(sweep_dir, entries)
+
+
+def keep_index(sweep_dir: Path, entries: IndexEntries) -> None:
+    """:func:`write_index` of ``entries`` when there are any, nothing where it cannot be
+    written (a read-only or full disk: the listing reads the record files)."""
+    if entries:
+        with contextlib.suppress(OSError):
+            write_index(sweep_dir, entries)
 
 
 def run_paths(sweep_dir: Path, run_id: str) -> tuple[Path, Path]:
@@ -169,5 +221,4 @@ def save_batch(
             for record in records:
                 if record.get("status") == "ok":
                     record.update(rows_file=name, rows_sha256=sha)
-        for record in records:
-            write_json_atomic(record, run_paths(sweep_dir, record["run_id"])[1], indent=None)
+        save_records(sweep_dir, records)

@@ -5,7 +5,9 @@ records it had to read from their files, each with its file's identity (inode, s
 in ns: a record is only ever replaced by a rename, which makes a new inode), in a new index
 file ``<sweep>/.records/index-<sha>.pkl`` (written atomically, never rewritten); the next
 listing stats every record file (one ``scandir``) and reads only those whose identity no
-index holds. ``ttc-bench compact`` folds the index files into one. An unreadable index file
+index holds. The store writes an index file of the records it writes
+(:func:`experiments.store.files.save_records`: a batch's, the plan's skipped settings'), so
+a sweep's own summary parses none of them. ``ttc-bench compact`` folds the index files into one. An unreadable index file
 is ignored (its records are read from their files); deleting ``.records/`` is always safe.
 Measured on a synthetic sweep of 28,000 records (2 cores, loaded by other work): reading and
 parsing every JSON file 4.1-9.8 s; from the index 1.9 s. (A sweep folder is the user's own
@@ -14,23 +16,16 @@ data: its pickles, like ``.plan/``'s, are trusted.)
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import json
 import os
 import pickle
 from pathlib import Path
 from typing import Any
 
-from experiments.store.files import RUNS_DIR
-from ttc.atomic import write_bytes_atomic
+from experiments.store.files import INDEX_DIR, RUNS_DIR, Identity, keep_index, write_index
 
-#: Folder of the index files, under the sweep folder.
-INDEX_DIR = ".records"
 #: A listing writes an index file when it read at least this many records from their files.
 WRITE_AT_LEAST = 64
-
-Identity = tuple[int, int, int]
 
 
 def _mtime(path: Path) -> int:
@@ -59,13 +54,6 @@ def _load_index(sweep_dir: Path, wanted: dict[str, Identity]) -> dict[str, dict[
             if name not in found and wanted.get(name) == tuple(identity):
                 found[name] = record
     return found
-
-
-def write_index(sweep_dir: Path, entries: dict[str, tuple[Identity, dict[str, Any]]]) -> Path:
-    """Write ``{file name: (identity, record)}`` as a new index file; its path."""
-    data = pickle.dumps(entries, protocol=pickle.HIGHEST_PROTOCOL)
-    name = f"index-{hashlib.sha256(data).hexdigest()[:16]}.pkl"
-    return write_bytes_atomic(data, Path(sweep_dir) / INDEX_DIR / name)
 
 
 def list_with_identities(sweep_dir: Path) -> dict[str, tuple[Identity, dict[str, Any]]]:
@@ -98,8 +86,7 @@ def list_with_identities(sweep_dir: Path) -> dict[str, tuple[Identity, dict[str,
             fresh[name] = (identity, record)
         out[name] = (identity, record)
     if len(fresh) >= WRITE_AT_LEAST:
-        with contextlib.suppress(OSError):
-            write_index(sweep_dir, fresh)
+        keep_index(sweep_dir, fresh)
     return out
 
 

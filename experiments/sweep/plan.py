@@ -192,12 +192,11 @@ def _drop_invalid(
                       peak_rss_mb=peak, n_rows=0, skipped_at="plan")  # fmt: skip
         skipped.append(record)
 
-    def write(record: dict[str, Any]) -> None:
-        path = store.run_paths(sweep_dir, record["run_id"])[1]
-        store.write_json_atomic(record, path, indent=None)
-
+    entries: dict[str, Any] = {}
     with ThreadPoolExecutor(max_workers=8) as pool:  # file system calls, in parallel
-        list(pool.map(write, skipped))
+        for entry in pool.map(lambda r: store.write_record(sweep_dir, r), skipped):
+            entries.update(entry)
+    store.keep_index(sweep_dir, entries)  # the summary parses none of them
     if skipped:
         progress.mark_progress(sweep_dir, "invalid-pairs", ["skipped"] * len(skipped))
     plan.invalid = len(skipped)
