@@ -241,15 +241,19 @@ def test_the_records_the_store_writes_are_listed_without_parsing_their_files(
 
     from experiments.store import record_index
 
-    odd = {"run_id": "a1", "status": "ok", "n_rows": 3, "pair": (1, 2), "where": tmp_path}
-    store.save_batch(tmp_path, "batch-a", [odd, record("a2", 2)],
+    inputs = json.dumps([["calib.txt", 502, 17956875946]] * 20)  # a batch's, long
+    odd = {"run_id": "a1", "status": "ok", "n_rows": 3, "pair": (1, 2), "where": tmp_path,
+           "inputs": inputs}  # fmt: skip
+    store.save_batch(tmp_path, "batch-a", [odd, {**record("a2", 2), "inputs": inputs}],
                      pd.concat([rows_of("a1", 3, 10.0), rows_of("a2", 2, 20.0)]))  # fmt: skip
     files = sorted((tmp_path / store.RUNS_DIR).glob("*.json"))
     expected = [json.loads(p.read_text()) for p in files]
     assert expected[0]["pair"] == [1, 2] and expected[0]["where"] == str(tmp_path)
     real_json, parsed = json.loads, []
     monkeypatch.setattr(record_index.json, "loads", lambda t: parsed.append(1) or real_json(t))
-    assert store.list_records(tmp_path) == expected and not parsed
+    listed = store.list_records(tmp_path)
+    assert listed == expected and not parsed
+    assert listed[0]["inputs"] is listed[1]["inputs"]  # stored once in the index file
     # another writer replaces a2's record (a new file): read from the file, a1 from the index
     store.write_json_atomic({**expected[1], "status": "failed"}, files[1], indent=None)
     listed = store.list_records(tmp_path)

@@ -100,9 +100,27 @@ def write_record(sweep_dir: Path, record: dict[str, Any]) -> IndexEntries:
 def write_index(sweep_dir: Path, entries: IndexEntries) -> Path:
     """Write ``entries`` as a new index file of records
     (``<sweep>/.records/index-<sha>.pkl``, never rewritten); its path."""
-    data = pickle.dumps(entries, protocol=pickle.HIGHEST_PROTOCOL)
+    data = pickle.dumps(_texts_shared(entries), protocol=pickle.HIGHEST_PROTOCOL)
     name = f"index-{hashlib.sha256(data).hexdigest()[:16]}.pkl"
     return write_bytes_atomic(data, Path(sweep_dir) / INDEX_DIR / name)
+
+
+#: Record texts at least this long are stored once per index file when records share them.
+SHARED_TEXT_CHARS = 64
+
+
+def _texts_shared(entries: IndexEntries) -> IndexEntries:
+    """``entries`` with equal long text values (a batch's ``inputs``: 3.7 kB of a 7 kB
+    record, the same for each of its runs) made one object, which pickle then stores once
+    (and loads as one): ``grand`` 0–18's index 233 MB before."""
+    seen: dict[str, str] = {}
+    out: IndexEntries = {}
+    for name, (identity, record) in entries.items():
+        out[name] = (identity, {
+            k: seen.setdefault(v, v) if isinstance(v, str) and len(v) >= SHARED_TEXT_CHARS else v
+            for k, v in record.items()
+        })  # fmt: skip
+    return out
 
 
 def save_records(sweep_dir: Path, records: Iterable[dict[str, Any]]) -> None:
