@@ -231,3 +231,33 @@ def test_configs_flattened_once_per_process_give_each_call_its_own_table() -> No
     unseen = json.dumps({"dataset": {"sequence": "c"}})
     runs = pd.DataFrame({"run_id": ["r1", "r3"], "config": [three, unseen]})
     assert recordings.recording_of(runs).to_dict() == {"r1": "a", "r3": "c"}
+
+
+def test_a_configs_recording_is_read_as_json_reads_it() -> None:
+    """:func:`experiments.recordings.top_level_entry` (the summary reads each run's
+    ``dataset`` entry without parsing the whole config) gives what :func:`json.loads` gives:
+    stored configs, other spacing, a nested key of the same name, a key given twice (the last
+    wins), escapes; a missing key and a text that is no object raise."""
+    import json
+
+    import pytest
+
+    from experiments.recordings import top_level_entry
+
+    stored = json.dumps({"box_matching": {"dataset": "x"}, "camera_ttc": [1, {"a": None}],
+                         "dataset": {"sequence": "kitti/2011_09_26", "last": 18},
+                         "detector": {"dataset": "y"}}, sort_keys=True)  # fmt: skip
+    texts = [
+        stored,
+        json.dumps(json.loads(stored), indent=2),
+        json.dumps(json.loads(stored), separators=(",", ":")),
+        ' { "dataset" : 1 , "dataset" : {"sequence": "b\\"q\\u00e9"} } ',
+        '{"a": "\\"dataset\\": 3", "dataset": [1, 2]}',
+        '{"dataset": {}, "z": {"dataset": 5}}',
+    ]
+    for text in texts:
+        assert top_level_entry(text, "dataset") == json.loads(text)["dataset"]
+    with pytest.raises(KeyError):
+        top_level_entry('{"detector": {"dataset": 1}}', "dataset")
+    with pytest.raises(ValueError):
+        top_level_entry('["dataset", 1]', "dataset")
