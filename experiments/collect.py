@@ -13,8 +13,9 @@ from pathlib import Path
 import pandas as pd
 
 from experiments import progress, store
-from experiments.lead_cache import lead_rows
+from experiments.lead_cache import LeadRows
 from experiments.paths import shown
+from experiments.ranking_cache import kept_run_metrics
 from experiments.sweep.finished import nothing_computed_line, summary_head
 from ttc.atomic import remove_stale_temporaries
 from ttc.settings import SETTING_AXES, only_sensor_axes
@@ -46,7 +47,14 @@ def ranked_runs(frames: pd.DataFrame, reference: pd.DataFrame, sensor: str) -> p
     (rates are fractions, MiD in 10⁻⁴ of the log distance ratio, time in ms)."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
-    ranked = ev.rank_runs(ev.run_metrics(frames, reference), sensor)
+    return _ranking(ev.run_metrics(frames, reference), sensor)
+
+
+def _ranking(metrics: pd.DataFrame, sensor: str) -> pd.DataFrame:
+    """:func:`ttc.evaluation.rank_runs` of ``metrics`` on ``sensor``, the summary's columns."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+
+    ranked = ev.rank_runs(metrics, sensor)
     columns = [*summary_columns(sensor), "ms_per_frame"]
     return ranked[[c for c in columns if c in ranked]]
 
@@ -110,11 +118,12 @@ def summarise_sweep(
     or corrupt rows file. ``data_dir`` / ``cache_dir``: None for the configured defaults.
 
     Nothing is merged or written (the store is append-only); temporary files of killed jobs
-    are removed. Only the lead rows are loaded
-    (the ranking's rows), so a sweep of millions of rows is summarised without loading it
-    whole, and those of the fragments an earlier summary read are kept
-    (:mod:`experiments.lead_cache`). ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be
-    the one printed before)."""
+    are removed. Only the lead rows are read (the ranking's rows), so a sweep of millions of
+    rows is summarised without loading it whole; each fragment's lead rows and, on a real
+    drive, its runs' metrics are kept by the first summary that reads it
+    (:mod:`experiments.lead_cache`, :mod:`experiments.ranking_cache`), so a later summary
+    judges only the new runs. ``unchanged=True`` (nothing was computed): counts only, no
+    ranking (it would be the one printed before)."""
     sweep_dir = Path(sweep_dir)
     remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
     records = store.list_records(sweep_dir)
@@ -133,11 +142,12 @@ def summarise_sweep(
     if unchanged:
         print(nothing_computed_line(sweep_dir))
         return pd.DataFrame()
-    frames = lead_rows(sweep_dir, records) if n_rows else pd.DataFrame()
-    if frames.empty:
+    lead = LeadRows(sweep_dir, records) if n_rows else None
+    if lead is None or not lead.keys:
         return pd.DataFrame()
+    frames = _truth_rows(lead)
     try:
-        tables = _best(frames, runs, data_dir, cache_dir)
+        tables = _best(lead, frames, runs, data_dir, cache_dir)
     except Exception as exc:  # the rows stand; the ranking is the report's job
         print(f"\n(no ranking: {type(exc).__name__}: {exc})")
         return pd.DataFrame()
@@ -162,21 +172,32 @@ def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
     return REPORT_CONTENTS[report_kind(frames, runs)].format(fused=fused)
 
 
+def _truth_rows(lead: LeadRows) -> pd.DataFrame:
+    """What :func:`experiments.recordings.report_kind` and the references read of the lead
+    rows to tell a generated recording (a truth): every column when the sweep's rows carry
+    one, else ``run_id`` alone (no rows of a real drive are read for it)."""
+    if "ttc_true" in lead.schema.names:
+        return lead.frame()
+    return lead.frame(columns=["run_id"])
+
+
 def _ranked(
-    frames: pd.DataFrame, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
+    lead: LeadRows, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
 ) -> pd.DataFrame:
-    """The runs ranked on ``sensor``: against the one recording's reference, or pooled over
-    several (:func:`pooled_runs`)."""
-    if len(references) > 1:
-        return pooled_runs(frames, runs, references, sensor)
-    return ranked_runs(frames, next(iter(references.values())), sensor)
+    """The runs ranked on ``sensor``: against a real drive's reference from each fragment's
+    kept metrics (:mod:`experiments.ranking_cache`), else from the rows (:func:`_unkept`)."""
+    if len(references) > 1 or "ttc_true" in lead.schema.names:
+        return _unkept(lead.frame(), runs, references, sensor)
+    return _ranking(kept_run_metrics(lead, next(iter(references.values()))), sensor)
 
 
-def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list[tuple]:
+def _best(
+    lead: LeadRows, frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir
+) -> list[tuple]:
     """[(ranked settings, title)] by :data:`ttc.evaluation.RANKING_RULE`: against the
     reference (pooled over the recordings of a sweep over several), none when no reference
     can be built; when the sweep is ranked on another sensor and holds runs with a fusion,
-    also those runs ranked on the fused TTC."""
+    also those runs ranked on the fused TTC. ``frames``: :func:`_truth_rows` of ``lead``."""
     from experiments.recordings import report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
@@ -191,15 +212,26 @@ def _best(frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir) -> list
         "recording": "the reference",
     }[report_kind(frames, runs)]
     rule = "(ttc.evaluation.RANKING_RULE)"
-    tables = [(_ranked(frames, runs, references, sensor),
+    tables = [(_ranked(lead, runs, references, sensor),
                f"on the {sensor} TTC against {against} {rule}")]  # fmt: skip
     fused = fused_runs(ok)
-    if sensor != "fused" and not fused.empty:
+    if sensor != "fused" and not fused.empty:  # ms_compute over the fused runs' rows alone
+        frames = lead.frame()
         mine = frames[frames["run_id"].isin(set(fused["run_id"]))]
-        tables.append((_ranked(mine, fused, references, "fused"),
+        tables.append((_unkept(mine, fused, references, "fused"),
                        f"with a fusion, on the fused TTC {rule} (FP.7: the report's "
                        "fp7_fusion.md)"))  # fmt: skip
     return tables
+
+
+def _unkept(
+    frames: pd.DataFrame, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
+) -> pd.DataFrame:
+    """The runs of ``frames`` ranked on ``sensor`` from the rows themselves (a subset of the
+    sweep: its computing times are counted over its own rows)."""
+    if len(references) > 1:
+        return pooled_runs(frames, runs, references, sensor)
+    return ranked_runs(frames, next(iter(references.values())), sensor)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -243,7 +243,8 @@ def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir
     """The end-of-sweep summary reads only the lead rows and the columns the metrics read
     (:func:`experiments.lead_cache.lead_rows`, kept per fragment by the sweep's summary and
     read back here); its ranking is the ranking of every row."""
-    from experiments.collect import lead_rows, ranked_runs
+    from experiments.collect import ranked_runs
+    from experiments.lead_cache import lead_rows
     from experiments.reference_store import recording_references
     from ttc.engine.cache import StageCache
 
@@ -256,3 +257,67 @@ def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir
     whole = ranked_runs(frames, reference, "camera")
     assert len(whole) == 24
     pd.testing.assert_frame_equal(ranked_runs(few, reference, "camera"), whole)
+
+
+def test_kept_run_metrics_are_taken_back_only_while_what_they_read_is_unchanged(
+    two_ways, data_dir, tmp_path, monkeypatch
+) -> None:
+    """The summary's run metrics kept per fragment (:mod:`experiments.ranking_cache`) are
+    :func:`ttc.evaluation.run_metrics` of every lead row each time: read back with no run
+    judged again; a new fragment whose stages all came from the cache is judged alone; one
+    whose runs computed the keypoints of ``fast`` again (1 s a frame) moves the median computing
+    time that the cached rows of ``fast`` look up: the fragments with ``fast`` runs are
+    judged again, the others taken as kept; against another reference, every fragment."""
+    import shutil
+
+    from experiments.lead_cache import LeadRows
+    from experiments.ranking_cache import kept_run_metrics
+    from experiments.reference_store import recording_references
+    from ttc import evaluation as ev
+    from ttc.engine.cache import StageCache
+
+    folder = tmp_path / "grid"
+    shutil.copytree(two_ways["tmp"] / "batched" / "grid", folder)
+    frames, runs = store.load_sweep(folder)
+    ok = runs[runs["status"] == "ok"]
+    cache = StageCache(two_ways["tmp"] / "cache")
+    (reference,) = recording_references(frames, ok, data_dir, cache).values()
+    judged: list[str] = []
+    real = ev.run_metrics
+
+    def counted(rows: pd.DataFrame, *args, **kwargs) -> pd.DataFrame:
+        judged.extend(rows["run_id"].unique())
+        return real(rows, *args, **kwargs)
+
+    def summary(against: pd.DataFrame = reference) -> pd.DataFrame:
+        judged.clear()
+        lead = LeadRows(folder)
+        got = kept_run_metrics(lead, against)
+        pd.testing.assert_frame_equal(got, real(lead.frame(), against))
+        return got.set_index("run_id")
+
+    def add(run_ids: list[str], **columns) -> None:
+        """New runs: a fast run's rows, every stage loaded from the cache but ``columns``."""
+        base = frames[frames["run_id"] == ok.loc[ok["detector"] == "fast", "run_id"].iloc[0]]
+        cached = {f"cached_{s}": True for s in ("objects", "lidar", "keypoints", "descriptors",
+                                                 "matches")}  # fmt: skip
+        rows = pd.concat([base.assign(run_id=r, **{**cached, **columns}) for r in run_ids])
+        records = [{"run_id": r, "status": "ok", "n_rows": len(base)} for r in run_ids]
+        store.save_batch(folder, f"batch-{run_ids[0]}", records, rows)
+
+    monkeypatch.setattr(ev, "run_metrics", counted)
+    summary()
+    assert summary() is not None and judged == []
+    loaded = "a" * 16
+    add([loaded], ms_keypoints=0.5)  # loaded from the cache in 0.5 ms
+    before = summary()
+    assert judged == [loaded]
+    fast = set(ok.loc[ok["detector"] == "fast", "run_id"])
+    computed = [f"c{i:015d}" for i in range(len(fast) + 1)]  # more than the fast runs
+    add(computed, cached_keypoints=False, ms_keypoints=1000.0)
+    after = summary()
+    assert set(judged) == fast | {loaded, *computed}  # the akaze fragments taken as kept
+    moved = after.loc[loaded, "ms_compute_per_frame"] - before.loc[loaded, "ms_compute_per_frame"]
+    assert moved > 0  # the kept value would have been wrong
+    summary(reference.assign(ttc_ref_s=reference["ttc_ref_s"] * 1.01))
+    assert set(judged) == set(after.index)

@@ -81,7 +81,7 @@ def test_kept_lead_rows_unreadable_duplicated_or_many_files(tmp_path, monkeypatc
     """A kept file that cannot be read is left out (its fragments computed again); a
     fragment kept in two files is taken once; past ``MAX_KEPT_FILES`` files the rows used
     are kept as one file and the others removed."""
-    from experiments import lead_cache, store
+    from experiments import kept_tables, lead_cache, store
 
     def add_run(run_id: str) -> None:
         rows = pd.DataFrame({"run_id": run_id, "frame": [1, 2], "is_lead": True,
@@ -98,7 +98,7 @@ def test_kept_lead_rows_unreadable_duplicated_or_many_files(tmp_path, monkeypatc
     kept.write_bytes(b"PAR1 not a parquet file")
     copy.unlink()
     pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), first)  # computed again
-    monkeypatch.setattr(lead_cache, "MAX_KEPT_FILES", 3)
+    monkeypatch.setattr(kept_tables, "MAX_KEPT_FILES", 3)
     for i in range(1, 4):  # one kept file per summary that computed something
         add_run(f"r{i}")
         rows = lead_cache.lead_rows(tmp_path)
@@ -181,23 +181,23 @@ def test_fragment_schemas_are_kept_and_a_new_type_still_unifies(tmp_path, monkey
 
 
 def test_kept_lead_rows_come_back_in_the_datasets_fragment_order() -> None:
-    """:func:`experiments.lead_cache.in_fragment_order` (slices of the runs of equal keys) is
+    """:func:`experiments.kept_tables.in_fragment_order` (slices of the runs of equal keys) is
     the stable sort of the rows by their key's position, also where a key's rows are split
     into several runs, on random tables."""
     import numpy as np
     import pyarrow as pa
 
-    from experiments import lead_cache
+    from experiments import kept_tables
 
     rng = np.random.default_rng(7)
     for _ in range(100):
         keys = [f"f{i}" for i in range(rng.integers(1, 7))]
         n = int(rng.integers(1, 50))
         names = rng.choice(keys, size=n)
-        table = pa.table({lead_cache.FRAGMENT: names, "row": np.arange(n),
+        table = pa.table({kept_tables.FRAGMENT: names, "row": np.arange(n),
                           "text": [f"r{i}" for i in range(n)]})  # fmt: skip
         order = list(rng.permutation(keys))
         expected = np.argsort([order.index(k) for k in names], kind="stable")
-        got = lead_cache.in_fragment_order(table, order)
+        got = kept_tables.in_fragment_order(table, order)
         np.testing.assert_array_equal(got["row"].to_numpy(), expected)
         assert got["text"].to_pylist() == [f"r{i}" for i in expected]

@@ -1,0 +1,155 @@
+"""The end-of-sweep summary's run metrics, kept per fragment (:mod:`experiments.kept_tables`).
+
+The summary of a sweep on one recording ranks :func:`ttc.evaluation.run_metrics` of every
+run's lead rows against the recording's reference. A run's metrics are its own rows', but for
+``ms_compute_per_frame``: a cached stage's load time is replaced by the median time of
+computing it over every run's rows (:mod:`ttc.evaluation.stage_times`). So each fragment's
+runs' metrics are kept under a key of its lead rows (:mod:`experiments.lead_cache`), the
+reference and this code, beside a digest of the computing times its runs look up: per cached
+stage and value of its axes (``detector``, ...), every computed time the sweep's rows count
+(:func:`counts_digests`). A later summary counts the computed times of every lead row (their
+few columns only), and takes a fragment's metrics as kept when its digest is unchanged; only
+new fragments, and those whose stages were computed again since, are judged again, from their
+kept lead rows, with the times looked up over the whole sweep as before. The table is the one
+:func:`ttc.evaluation.run_metrics` gives of all lead rows (test).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+
+from experiments import kept_tables as kt
+from experiments.kept_tables import FRAGMENT
+from experiments.lead_cache import LeadRows
+
+#: Kind (file name prefix) of the kept run metrics.
+KIND = "metrics"
+#: Column of a kept file: the digest of the computing times its fragment's runs looked up.
+LOOKED_UP = "__looked_up"
+#: Modules whose code the metrics depend on (besides pandas' and NumPy's).
+CODE_MODULES = ("metrics", "errors", "stage_times", "reference", "lead_status")
+
+
+def _code_key() -> str:
+    """Digest of the metrics' code and the library versions."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
+
+    root = Path(ev.__file__).parent
+    text = "".join((root / f"{m}.py").read_text() for m in CODE_MODULES)
+    return hashlib.sha256(f"{text}|{pd.__version__}|{np.__version__}".encode()).hexdigest()
+
+
+def reference_key(reference: pd.DataFrame) -> str:
+    """Digest of a reference table: its columns, types and values."""
+    values = pd.util.hash_pandas_object(reference, index=True).to_numpy().tobytes()
+    head = f"{list(reference.columns)}|{list(map(str, reference.dtypes))}".encode()
+    return hashlib.sha256(head + values).hexdigest()
+
+
+def _count_columns(lead: LeadRows) -> list[str]:
+    """The lead row columns the computing times are counted from."""
+    from ttc.evaluation.stage_times import CACHED_STAGE_INPUTS  # noqa: PLC0415
+
+    names = set(lead.schema.names)
+    wanted = ["frame"]
+    for ms, flag, axes in CACHED_STAGE_INPUTS.values():
+        wanted += [ms, flag, *axes]
+    return [c for c in dict.fromkeys(wanted) if c in names]
+
+
+def _key_text(values: pd.DataFrame) -> pd.Series:
+    """Each row's values as one text (NaN as its own value), for a digest lookup."""
+    if values.shape[1] == 0:
+        return pd.Series("", index=values.index)
+    parts = [values[c].astype(object).where(values[c].notna(), "\0nan").astype(str) for c in values]
+    text = parts[0]
+    for part in parts[1:]:
+        text = text + "\x1f" + part
+    return text
+
+
+def counts_digests(counts: dict[str, pd.DataFrame]) -> dict[str, dict[str, str]]:
+    """Per cached stage, per value of its axes (:func:`_key_text`): a digest of every computed
+    time the ``counts`` (:func:`ttc.evaluation.stage_times.stage_time_counts`) hold for it
+    (frame, ms, rows), in whatever order the counts came: what a row's compute time looks up."""
+    from ttc.evaluation.stage_times import CACHED_STAGE_INPUTS  # noqa: PLC0415
+
+    out: dict[str, dict[str, str]] = {}
+    for name, table in counts.items():
+        keys = [c for c in CACHED_STAGE_INPUTS[name][2] if c in table]
+        summed = table.groupby([*keys, "frame", "ms"], dropna=False, sort=True)["n"].sum()
+        summed = summed.reset_index()
+        text = _key_text(summed[keys])
+        out[name] = {
+            k: hashlib.sha256(g[["frame", "ms", "n"]].to_numpy(dtype=float).tobytes()).hexdigest()
+            for k, g in summed.groupby(text.to_numpy(), sort=False)
+        }
+    return out
+
+
+def looked_up(metrics: pd.DataFrame, digests: dict[str, dict[str, str]]) -> pd.Series:
+    """Per run of ``metrics`` (its axis columns): the digest of the computing times its rows'
+    lookups read (:func:`counts_digests`)."""
+    from ttc.evaluation.stage_times import CACHED_STAGE_INPUTS  # noqa: PLC0415
+
+    text = pd.Series("", index=metrics.index)
+    for name, (_, _, axes) in CACHED_STAGE_INPUTS.items():
+        keys = [c for c in axes if c in metrics]
+        found = _key_text(metrics[keys]).map(digests.get(name, {})).fillna("-")
+        text = text + "|" + found
+    return text
+
+
+def _fragment_digest(runs: pd.DataFrame, per_run: pd.Series) -> pd.Series:
+    """Per fragment (``runs[FRAGMENT]``): one digest of its runs' distinct lookups."""
+    return per_run.groupby(runs[FRAGMENT].to_numpy()).agg(
+        lambda s: hashlib.sha256("\n".join(sorted(set(s))).encode()).hexdigest()
+    )
+
+
+def kept_run_metrics(lead: LeadRows, reference: pd.DataFrame) -> pd.DataFrame:
+    """:func:`ttc.evaluation.run_metrics` of every lead row of ``lead`` against
+    ``reference``, each fragment's runs' metrics kept and taken back while what they depend
+    on is unchanged (module docstring)."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
+    from ttc.evaluation.stage_times import compute_times, stage_time_counts  # noqa: PLC0415
+
+    counts = stage_time_counts(lead.frame(columns=_count_columns(lead)))
+    digests = counts_digests(counts)
+    base = hashlib.sha256(f"{reference_key(reference)}|{_code_key()}".encode()).hexdigest()
+    keys = {hashlib.sha256(f"{k}|{base}".encode()).hexdigest()[:32]: k for k in lead.keys}
+    files = kt.kept_files(lead.sweep_dir, KIND)
+    tables, _ = kt.kept_rows(files, list(keys))
+    kept = pd.concat([t.to_pandas() for t in tables]) if tables else pd.DataFrame()
+    if len(kept):
+        now = _fragment_digest(kept, looked_up(kept, digests))
+        then = kept.groupby(FRAGMENT)[LOOKED_UP].first()
+        kept = kept[kept[FRAGMENT].map(now == then.reindex(now.index)).to_numpy(dtype=bool)]
+    done = set(kept[FRAGMENT]) if len(kept) else set()
+    todo = [k for k in keys if k not in done]
+    parts = [kept.drop(columns=[LOOKED_UP])] if len(kept) else []
+    if todo:
+        rows = lead.frame([keys[k] for k in todo])
+        rows["ms_compute_per_frame"] = compute_times(rows, counts)
+        new = ev.run_metrics(rows, reference)
+        fragment_of = {r: k for k in todo for r in lead.runs(keys[k])}
+        parts.append(new.assign(**{FRAGMENT: new["run_id"].map(fragment_of)}))
+        path = kt.keep(lead.sweep_dir, KIND, _stored(parts[-1], digests), todo)
+        if path is not None:
+            files[path] = set(todo)
+    metrics = pd.concat(parts, ignore_index=True)
+    if len(files) > kt.MAX_KEPT_FILES:  # one file of the metrics used, the others removed
+        kt.consolidate(lead.sweep_dir, KIND, _stored(metrics, digests), list(keys), list(files))
+    return metrics.drop(columns=[FRAGMENT]).sort_values("run_id", ignore_index=True)
+
+
+def _stored(metrics: pd.DataFrame, digests: dict[str, dict[str, str]]) -> pa.Table:
+    """``metrics`` (with :data:`FRAGMENT`) as kept: with each fragment's lookups' digest."""
+    digest = _fragment_digest(metrics, looked_up(metrics, digests))
+    table = metrics.assign(**{LOOKED_UP: metrics[FRAGMENT].map(digest)})
+    return pa.Table.from_pandas(table, preserve_index=False)
