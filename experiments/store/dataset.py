@@ -215,8 +215,10 @@ UNREAD_RECORD_FIELDS: tuple[str, ...] = ("inputs",)
 def runs_table(records: list[dict[str, Any]], exclude: tuple[str, ...] = ()) -> pd.DataFrame:
     """The run records as one table, sorted by run id (types as a parquet round trip gives
     them: the table ``runs.parquet`` held), the fields ``exclude`` left out."""
+    if exclude:  # left out before the table is made: converting them costs (0.7 s of 1.5 s)
+        left_out = set(exclude)
+        records = [{k: v for k, v in r.items() if k not in left_out} for r in records]
     runs = pd.DataFrame.from_records(records)
-    runs = runs.drop(columns=[c for c in exclude if c in runs])
     if runs.empty:
         return runs
     runs = runs.sort_values("run_id", ignore_index=True)
