@@ -127,7 +127,7 @@ def summarise_sweep(
     sweep_dir = Path(sweep_dir)
     remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
     records = store.list_records(sweep_dir)
-    runs = store.runs_table(records, exclude=store.UNREAD_RECORD_FIELDS)  # no long texts
+    runs = store.runs_table(records, exclude=store.UNREAD_RECORD_FIELDS, texts=("config",))
     n_rows = store.row_count(records)
     folder = progress.progress_dir(sweep_dir)
     outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None

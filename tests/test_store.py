@@ -343,3 +343,21 @@ def test_two_concurrent_writers_both_land(tmp_path) -> None:
     assert not frames.duplicated(KEY).any()
     res = sweep(["detector=fast", "descriptor=brief,orb,brisk"], tmp_path)
     assert "3 already complete (not launched)" in res.stdout
+
+
+def test_the_runs_table_keeps_long_texts_as_the_records_strings(tmp_path) -> None:
+    """``runs_table(records, texts=...)`` (the summary's, whose filters would copy every
+    run's 2 kB config as Arrow strings) holds the same values as the table of every field,
+    the texts as the records' own strings (object dtype), rows in run id order."""
+    records = [
+        {"run_id": "b2", "status": "ok", "n_rows": 3, "config": '{"dataset": {"s": "x"}}'},
+        {"run_id": "a1", "status": "failed", "message": "boom", "config": '{"é": 1}'},
+        {"run_id": "c3", "status": "skipped", "n_rows": 0},
+    ]
+    whole = store.runs_table(records)
+    kept = store.runs_table(records, texts=("config",))
+    assert kept["config"].dtype == object and list(kept.columns)[-1] == "config"
+    assert kept["config"].iloc[0] is records[1]["config"]
+    pd.testing.assert_frame_equal(kept[whole.columns].astype({"config": whole["config"].dtype}),
+                                  whole)  # fmt: skip
+    assert list(kept["run_id"]) == ["a1", "b2", "c3"]
