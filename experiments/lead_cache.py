@@ -124,7 +124,7 @@ class LeadRows:
         listed = set().union(*self._files.values()) if self._files else set()
         self._compute([k for k in self.keys if k not in listed])
         self._whole: pd.DataFrame | None = None
-        if len(self._files) > kt.MAX_KEPT_FILES:  # one file of the rows used, others removed
+        if self.keys and len(self._files) > kt.MAX_KEPT_FILES:  # the rows used as one file
             whole = self.table()
             kt.consolidate(sweep_dir, KIND, whole, self.keys, list(self._files))
             self._files = kt.kept_files(sweep_dir, KIND)

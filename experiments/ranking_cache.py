@@ -31,16 +31,17 @@ from experiments.lead_cache import LeadRows
 KIND = "metrics"
 #: Column of a kept file: the digest of the computing times its fragment's runs looked up.
 LOOKED_UP = "__looked_up"
-#: Modules whose code the metrics depend on (besides pandas' and NumPy's).
-CODE_MODULES = ("metrics", "errors", "stage_times", "reference", "lead_status")
+#: The files of the ``ttc`` package whose code the metrics run (besides pandas and NumPy).
+CODE_FILES = ("evaluation/metrics.py", "evaluation/errors.py", "evaluation/reference.py",
+              "evaluation/stage_times.py", "settings.py")  # fmt: skip
 
 
 def _code_key() -> str:
     """Digest of the metrics' code and the library versions."""
-    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
+    import ttc  # noqa: PLC0415
 
-    root = Path(ev.__file__).parent
-    text = "".join((root / f"{m}.py").read_text() for m in CODE_MODULES)
+    root = Path(ttc.__file__).parent
+    text = "".join((root / name).read_text() for name in CODE_FILES)
     return hashlib.sha256(f"{text}|{pd.__version__}|{np.__version__}".encode()).hexdigest()
 
 
