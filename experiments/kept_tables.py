@@ -49,9 +49,12 @@ def kept_files(sweep_dir: Path, kind: str) -> dict[Path, set[str]]:
     return out
 
 
-def read_kept(path: Path, wanted: set[str], columns: list[str] | None = None) -> pa.Table | None:
+def read_kept(
+    path: Path, wanted: set[str], columns: list[str] | None = None, whole: bool = False
+) -> pa.Table | None:
     """The rows of a kept file whose key is in ``wanted`` (their ``columns`` and
-    :data:`FRAGMENT`; None: all), or None when it cannot be read."""
+    :data:`FRAGMENT`; None: all), or None when it cannot be read. ``whole``: every key of the
+    file is wanted (no filter: a filter copies every column)."""
     try:
         names = pq.read_schema(path).names
         read = None if columns is None else [c for c in [*columns, FRAGMENT] if c in names]
@@ -60,6 +63,8 @@ def read_kept(path: Path, wanted: set[str], columns: list[str] | None = None) ->
         return None
     if FRAGMENT not in table.column_names:
         return None
+    if whole:
+        return table
     return table.filter(pc.is_in(table[FRAGMENT], pa.array(sorted(wanted), pa.string())))
 
 
@@ -93,7 +98,7 @@ def kept_rows(
     tables, found = [], set()
     for path, listed in files.items():
         wanted = (listed & set(keys)) - found
-        table = read_kept(path, wanted, columns) if wanted else None
+        table = read_kept(path, wanted, columns, whole=wanted == listed) if wanted else None
         if table is not None:
             tables.append(table)
             found.update(pc.unique(table[FRAGMENT]).to_pylist())
