@@ -91,13 +91,18 @@ def consolidate(
 
 
 def kept_rows(
-    files: dict[Path, set[str]], keys: list[str], columns: list[str] | None = None
+    files: dict[Path, set[str]],
+    keys: list[str],
+    columns: list[str] | None = None,
+    each_once: bool = True,
 ) -> tuple[list[pa.Table], set[str]]:
-    """(tables of the kept rows of ``keys`` in ``files`` (:func:`kept_files`), each key read
-    from one file; the keys found)."""
+    """(tables of the kept rows of ``keys`` in ``files`` (:func:`kept_files`), one table per
+    file read, in the order of ``files``; the keys found). ``each_once``: each key read from
+    one file; else from every file that holds it (for a reader that checks which copy is
+    still valid)."""
     tables, found = [], set()
     for path, listed in files.items():
-        wanted = (listed & set(keys)) - found
+        wanted = (listed & set(keys)) - (found if each_once else set())
         table = read_kept(path, wanted, columns, whole=wanted == listed) if wanted else None
         if table is not None:
             tables.append(table)

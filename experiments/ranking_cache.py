@@ -125,12 +125,7 @@ def kept_run_metrics(lead: LeadRows, reference: pd.DataFrame) -> pd.DataFrame:
     base = hashlib.sha256(f"{reference_key(reference)}|{_code_key()}".encode()).hexdigest()
     keys = {hashlib.sha256(f"{k}|{base}".encode()).hexdigest()[:32]: k for k in lead.keys}
     files = kt.kept_files(lead.sweep_dir, KIND)
-    tables, _ = kt.kept_rows(files, list(keys))
-    kept = pd.concat([t.to_pandas() for t in tables]) if tables else pd.DataFrame()
-    if len(kept):
-        now = _fragment_digest(kept, looked_up(kept, digests))
-        then = kept.groupby(FRAGMENT)[LOOKED_UP].first()
-        kept = kept[kept[FRAGMENT].map(now == then.reindex(now.index)).to_numpy(dtype=bool)]
+    kept = _valid(kt.kept_rows(files, list(keys), each_once=False)[0], digests)
     done = set(kept[FRAGMENT]) if len(kept) else set()
     todo = [k for k in keys if k not in done]
     parts = [kept.drop(columns=[LOOKED_UP])] if len(kept) else []
@@ -147,6 +142,25 @@ def kept_run_metrics(lead: LeadRows, reference: pd.DataFrame) -> pd.DataFrame:
     if len(files) > kt.MAX_KEPT_FILES:  # one file of the metrics used, the others removed
         kt.consolidate(lead.sweep_dir, KIND, _stored(metrics, digests), list(keys), list(files))
     return metrics.drop(columns=[FRAGMENT]).sort_values("run_id", ignore_index=True)
+
+
+def _valid(tables: list[pa.Table], digests: dict[str, dict[str, str]]) -> pd.DataFrame:
+    """The kept metrics of ``tables`` (one per kept file, in order) still valid under
+    ``digests``: each fragment's copy whose lookups' digest is unchanged, from the first file
+    that holds one (an earlier summary's copy may be stale, a later one's valid)."""
+    if not tables:
+        return pd.DataFrame()
+    kept = pd.concat([t.to_pandas().assign(**{_FILE: i}) for i, t in enumerate(tables)],
+                     ignore_index=True)  # fmt: skip
+    copy = kept[FRAGMENT] + "|" + kept[_FILE].astype(str)
+    now = _fragment_digest(kept.assign(**{FRAGMENT: copy}), looked_up(kept, digests))
+    kept = kept[(copy.map(now) == kept[LOOKED_UP]).to_numpy(dtype=bool)]
+    first = kept.groupby(FRAGMENT)[_FILE].transform("min")
+    return kept[(kept[_FILE] == first).to_numpy(dtype=bool)].drop(columns=[_FILE])
+
+
+#: Column of :func:`_valid`'s table: the kept file a row came from.
+_FILE = "__file"
 
 
 def _stored(metrics: pd.DataFrame, digests: dict[str, dict[str, str]]) -> pa.Table:

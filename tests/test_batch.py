@@ -319,5 +319,14 @@ def test_kept_run_metrics_are_taken_back_only_while_what_they_read_is_unchanged(
     assert set(judged) == fast | {loaded, *computed}  # the akaze fragments taken as kept
     moved = after.loc[loaded, "ms_compute_per_frame"] - before.loc[loaded, "ms_compute_per_frame"]
     assert moved > 0  # the kept value would have been wrong
+    # the oldest kept file (stale copies of the fast fragments) read first: still valid
+    kept = sorted(
+        (folder / ".summary").glob("metrics-*.parquet"), key=lambda p: p.stat().st_mtime_ns
+    )
+    assert len(kept) >= 2
+    for i, path in enumerate(kept):
+        path.rename(path.with_name(f"metrics-{i:04d}.parquet"))
+    summary()
+    assert judged == []
     summary(reference.assign(ttc_ref_s=reference["ttc_ref_s"] * 1.01))
     assert set(judged) == set(after.index)
