@@ -7,8 +7,9 @@ file ``<sweep>/.records/index-<sha>.pkl`` (written atomically, never rewritten);
 listing stats every record file (one ``scandir``) and reads only those whose identity no
 index holds. The store writes an index file of the records it writes
 (:func:`experiments.store.files.save_records`: a batch's, the plan's skipped settings'), so
-a sweep's own summary parses none of them. ``ttc-bench compact`` folds the index files into one. An unreadable index file
-is ignored (its records are read from their files); deleting ``.records/`` is always safe.
+a sweep's own summary parses none of them. ``ttc-bench compact`` folds the index files into
+one. An unreadable index file is ignored (its records are read from their files); deleting
+``.records/`` is always safe.
 Measured on a synthetic sweep of 28,000 records (2 cores, loaded by other work): reading and
 parsing every JSON file 4.1-9.8 s; from the index 1.9 s. (A sweep folder is the user's own
 data: its pickles, like ``.plan/``'s, are trusted.)
