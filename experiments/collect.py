@@ -176,11 +176,17 @@ def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
     return REPORT_CONTENTS[report_kind(frames, runs)].format(fused=fused)
 
 
+def _may_carry_truth(lead: LeadRows) -> bool:
+    """Whether the sweep's rows have a truth column (a generated recording's,
+    :func:`ttc.evaluation.has_truth`): a real drive's rows have none."""
+    return "ttc_true" in lead.schema.names
+
+
 def _truth_rows(lead: LeadRows) -> pd.DataFrame:
     """What :func:`experiments.recordings.report_kind` and the references read of the lead
     rows to tell a generated recording (a truth): every column when the sweep's rows carry
     one, else ``run_id`` alone (no rows of a real drive are read for it)."""
-    if "ttc_true" in lead.schema.names:
+    if _may_carry_truth(lead):
         return lead.frame()
     return lead.frame(columns=["run_id"])
 
@@ -190,7 +196,7 @@ def _ranked(
 ) -> pd.DataFrame:
     """The runs ranked on ``sensor``: against a real drive's reference from each fragment's
     kept metrics (:mod:`experiments.ranking_cache`), else from the rows (:func:`_unkept`)."""
-    if len(references) > 1 or "ttc_true" in lead.schema.names:
+    if len(references) > 1 or _may_carry_truth(lead):
         return _unkept(lead.frame(), runs, references, sensor)
     return _ranking(kept_run_metrics(lead, next(iter(references.values()))), sensor)
 

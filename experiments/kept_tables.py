@@ -56,8 +56,10 @@ def read_kept(
     :data:`FRAGMENT`; None: all), or None when it cannot be read. ``whole``: every key of the
     file is wanted (no filter: a filter copies every column)."""
     try:
-        names = pq.read_schema(path).names
-        read = None if columns is None else [c for c in [*columns, FRAGMENT] if c in names]
+        read = None
+        if columns is not None:  # only those the file has (its footer read once more)
+            names = pq.read_schema(path).names
+            read = [c for c in [*columns, FRAGMENT] if c in names]
         table = pq.read_table(path, columns=read)
     except (OSError, ValueError, pa.ArrowException):
         return None
