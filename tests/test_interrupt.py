@@ -43,7 +43,9 @@ def test_the_line_counts_the_records(tmp_path: Path) -> None:
 def test_sigint_is_remembered_when_a_library_turns_it_into_another_error() -> None:
     """Ctrl-C inside OmegaConf (Hydra composing a config) came out as an ``AttributeError``
     and the sweep exited 1 with a traceback (CI, stop 25): the sweeper asks whether SIGINT
-    arrived instead of matching the exception's type."""
+    arrived instead of matching the exception's type. Python's own handler is put back after."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # SIG_IGN where a shell
+    # started the tests in the background
     seen = SigintSeen()
     with pytest.raises(AttributeError), watch_sigint(seen):
         try:
@@ -56,7 +58,7 @@ def test_sigint_is_remembered_when_a_library_turns_it_into_another_error() -> No
     with pytest.raises(ValueError), watch_sigint(quiet):
         raise ValueError("a real error")
     assert not quiet.seen
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.signal(signal.SIGINT, before) is signal.default_int_handler
 
 
 def descendants(pid: int) -> list:
