@@ -83,8 +83,33 @@ def _code_key(columns: list[str]) -> str:
     """Digest of the reduction's code and the columns it reads."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
 
-    text = inspect.getsource(ev.lead_rows) + json.dumps(columns) + pd.__version__ + pa.__version__
+    code = inspect.getsource(ev.lead_row_positions) + inspect.getsource(lead_table)
+    text = code + json.dumps(columns) + pd.__version__ + pa.__version__
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def lead_table(rows: pa.Table) -> pa.Table:
+    """:func:`ttc.evaluation.lead_rows` of an Arrow table of rows, in Arrow: the rows
+    :func:`ttc.evaluation.lead_row_positions` keeps, their
+    :data:`~ttc.evaluation.LEAD_BLANKED` estimates null where the row is not a lead row. As
+    pandas (``to_pandas``) it is ``lead_rows(rows.to_pandas())`` (test); taking the rows in
+    Arrow spares a fragment's 58 columns their trip through pandas and back (the 70
+    fragments of an ``fp6_grid`` folder, 29,502 rows: 0.65 → 0.07 s)."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
+
+    if rows.num_rows == 0:
+        return rows
+    positions, blank = ev.lead_row_positions(
+        *(rows[c].to_numpy(zero_copy_only=False) for c in ("run_id", "frame", "is_lead"))
+    )
+    lead = rows.take(pa.array(positions))
+    if blank.any():
+        mask = pa.array(blank)
+        for name in (c for c in ev.LEAD_BLANKED if c in lead.column_names):
+            column = lead[name]
+            blanked = pc.if_else(mask, pa.scalar(None, column.type), column)
+            lead = lead.set_column(lead.schema.get_field_index(name), name, blanked)
+    return lead
 
 
 def fragment_key(frag: Fragment, key: str) -> str:
@@ -135,16 +160,12 @@ class LeadRows:
 
     def _compute(self, todo: list[str]) -> pa.Table | None:
         """Compute and keep the lead rows of the fragments ``todo``; their table, or None."""
-        from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
-
         if not todo:
             return None
         new = []
         frags = [self._frags[k] for k in todo]
         for k, table in zip(todo, iter_tables(frags, self.schema, self._columns), strict=True):
-            rows = table.to_pandas()
-            lead = ev.lead_rows(rows) if len(rows) else rows
-            lead = pa.Table.from_pandas(lead, preserve_index=False)
+            lead = lead_table(table)
             new.append(lead.append_column(FRAGMENT, pa.array([k] * lead.num_rows, pa.string())))
         table = pa.concat_tables(new, promote_options="permissive")
         path = kt.keep(self.sweep_dir, KIND, table, todo)

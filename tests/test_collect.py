@@ -77,6 +77,72 @@ def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
     assert len(list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet"))) == 2
 
 
+def spec_lead_rows(frames: pd.DataFrame) -> pd.DataFrame:
+    """The lead-row rule as first written (a stable sort on run, frame and the flag, the
+    first row of each pair), the definition :func:`ttc.evaluation.lead_rows` must keep."""
+    import numpy as np
+
+    order = frames.sort_values(
+        ["run_id", "frame", "is_lead"], ascending=[True, True, False], kind="stable"
+    )
+    lead = order.drop_duplicates(["run_id", "frame"]).reset_index(drop=True)
+    blanked = ["ttc_camera", "ttc_lidar", "ttc_fused", "camera_ratio", "fused_ratio", "d_prev",
+               "d_curr"]  # fmt: skip
+    lead.loc[~lead["is_lead"].astype(bool), [c for c in blanked if c in lead]] = np.nan
+    return lead
+
+
+def random_rows(seed: int, unknown_flags: bool) -> pd.DataFrame:
+    """Rows of a few runs in shuffled order: pairs with several lead rows, none, or (with
+    ``unknown_flags``) flags of unknown value (None); NaN estimates; an integer column."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    n = 400
+    flags = rng.random(n) < 0.3
+    is_lead = flags.astype(object) if unknown_flags else flags
+    if unknown_flags:
+        is_lead[rng.random(n) < 0.2] = None
+    ttc = rng.normal(8.0, 3.0, n)
+    ttc[rng.random(n) < 0.1] = np.nan
+    return pd.DataFrame(
+        {
+            "run_id": rng.choice([f"{i:016x}" for i in rng.integers(0, 2**60, 7)], n),
+            "frame": rng.integers(0, 12, n),
+            "is_lead": is_lead,
+            "ttc_camera": ttc,
+            "d_prev": rng.normal(10.0, 1.0, n),
+            "n_matches": rng.integers(0, 500, n),
+            "detector": rng.choice(["fast", "orb"], n),
+        }
+    )
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("unknown_flags", [False, True])
+def test_lead_rows_keep_each_pairs_first_lead_row(seed: int, unknown_flags: bool) -> None:
+    """:func:`ttc.evaluation.lead_rows` (positions from three columns, then one take) is the
+    rule's first definition row for row, blanking included; so is the Arrow path of the
+    summary's kept lead rows (:func:`experiments.lead_cache.lead_table`) as pandas, with
+    nullable integer columns and NaN beside null estimates."""
+    import pyarrow as pa
+
+    from experiments.lead_cache import lead_table
+    from ttc import evaluation as ev
+
+    rows = random_rows(seed, unknown_flags)
+    expected = spec_lead_rows(rows)
+    assert (~expected["is_lead"].astype(bool)).any() and expected["is_lead"].astype(bool).any()
+    pd.testing.assert_frame_equal(ev.lead_rows(rows), expected)
+    table = pa.Table.from_pandas(rows, preserve_index=False)
+    gaps = pa.array(rows["n_matches"].where(rows["frame"] != 3).astype("Int64"), pa.int64())
+    table = table.set_column(table.schema.get_field_index("n_matches"), "n_matches", gaps)
+    null_ttc = pa.array(rows["ttc_camera"].to_numpy(), mask=(rows["frame"] == 5).to_numpy())
+    table = table.set_column(table.schema.get_field_index("ttc_camera"), "ttc_camera", null_ttc)
+    pd.testing.assert_frame_equal(lead_table(table).to_pandas(), ev.lead_rows(table.to_pandas()))
+    assert lead_table(table.slice(0, 0)).num_rows == 0
+
+
 def test_kept_lead_rows_unreadable_duplicated_or_many_files(tmp_path, monkeypatch) -> None:
     """A kept file that cannot be read is left out (its fragments computed again); a
     fragment kept in two files is taken once; past ``MAX_KEPT_FILES`` files the rows used

@@ -86,12 +86,14 @@ from ttc.evaluation.drives import (
 )
 from ttc.evaluation.errors import (
     FALSE_ALARM_S,
+    LEAD_BLANKED,
     NOT_JUDGED_COLUMNS,
     OUTLIER_REL,
     SENSORS,
     WARNING_TTC_S,
     attach_reference,
     frame_errors,
+    lead_row_positions,
     lead_rows,
     mid_error,
     rows_of_runs,
@@ -214,6 +216,8 @@ __all__ = [
     "lead_distance_series",
     "lead_points",
     "NOT_JUDGED_COLUMNS",
+    "LEAD_BLANKED",
+    "lead_row_positions",
     "lead_rows",
     "DRIVE_FRAME_STRIDE",
     "POOLED",

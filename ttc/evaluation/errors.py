@@ -88,16 +88,45 @@ def rows_of_runs(frames: pd.DataFrame, run_ids) -> pd.DataFrame:
     return frames.copy(deep=False) if mask.all() else frames[mask]
 
 
+#: The estimates of a lead row stand-in (a frame pair whose run has no lead row): blanked.
+LEAD_BLANKED = ("ttc_camera", "ttc_lidar", "ttc_fused", "camera_ratio", "fused_ratio", "d_prev",
+                "d_curr")  # fmt: skip
+
+
+def lead_row_positions(
+    run_id: np.ndarray, frame: np.ndarray, is_lead: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which rows :func:`lead_rows` keeps, from three (N,) columns of a rows table (run ids,
+    integer frame numbers, the ``is_lead`` flags: bool, or object with None for unknown).
+
+    Returns the positions (M,) of one row per (run_id, frame), in (run_id, frame) order: the
+    pair's first row flagged ``is_lead``, else its first row (first in the table's order);
+    and (M,) bool, True where the kept row is not a lead row (its estimates are blanked,
+    :data:`LEAD_BLANKED`). The one rule for pandas frames and Arrow tables alike."""
+    n = len(run_id)
+    runs = pd.factorize(np.asarray(run_id), sort=True)[0]  # sorted as pandas sorts the ids
+    flags = np.asarray(is_lead)
+    known = ~pd.isna(flags)
+    lead = np.zeros(n, dtype=bool)
+    lead[known] = flags[known].astype(bool)
+    rank = np.where(lead, 0, np.where(known, 1, 2))  # lead rows first, unknown flags last
+    frames = np.asarray(frame)
+    order = np.lexsort((rank, frames, runs))  # stable: ties keep the table's order
+    first = np.ones(n, dtype=bool)
+    first[1:] = (np.diff(runs[order]) != 0) | (frames[order][1:] != frames[order][:-1])
+    positions = order[first]
+    return positions, ~lead[positions]
+
+
 def lead_rows(frames: pd.DataFrame) -> pd.DataFrame:
-    """One row per (run_id, frame): the lead row, else the pair's first row with its estimates
-    blanked (NaN TTCs and ratios: the run has no estimate of the lead vehicle there)."""
-    order = frames.sort_values(
-        ["run_id", "frame", "is_lead"], ascending=[True, True, False], kind="stable"
+    """One row per (run_id, frame), in that order (:func:`lead_row_positions`): the lead row,
+    else the pair's first row with its estimates blanked (NaN TTCs and ratios: the run has no
+    estimate of the lead vehicle there)."""
+    positions, blank = lead_row_positions(
+        frames["run_id"].to_numpy(), frames["frame"].to_numpy(), frames["is_lead"].to_numpy()
     )
-    lead = order.drop_duplicates(["run_id", "frame"]).reset_index(drop=True)
-    blanked = ["ttc_camera", "ttc_lidar", "ttc_fused", "camera_ratio", "fused_ratio", "d_prev",
-               "d_curr"]  # fmt: skip
-    lead.loc[~lead["is_lead"].astype(bool), [c for c in blanked if c in lead]] = np.nan
+    lead = frames.iloc[positions].reset_index(drop=True)
+    lead.loc[blank, [c for c in LEAD_BLANKED if c in lead]] = np.nan
     return lead
 
 
