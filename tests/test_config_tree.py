@@ -34,6 +34,23 @@ def composed(overrides: list[str]) -> DictConfig:
         return compose(config_name="config", overrides=overrides, return_hydra_config=True)
 
 
+def test_the_schemas_are_stored_once_per_config_store(monkeypatch) -> None:
+    """A served command runs ``experiments.run`` again as ``__main__`` in a process whose
+    ConfigStore holds the schemas: nothing is stored again; a new store (a worker restoring
+    Hydra's singletons) gets them."""
+    from hydra.core.config_store import ConfigStore
+
+    register_configs()
+    store = ConfigStore.instance()
+    monkeypatch.setattr(store, "store", lambda *a, **k: pytest.fail("stored again"))
+    register_configs()
+    monkeypatch.undo()
+    fresh = ConfigStore()
+    monkeypatch.setitem(type(store)._instances, ConfigStore, fresh)
+    register_configs()
+    assert "dataset.yaml" in fresh.repo["schema"] and "ttc_schema.yaml" in fresh.repo
+
+
 def test_every_axis_has_a_config_group_folder() -> None:
     assert all((CONF / axis).is_dir() for axis in AXES)
     assert len(OPTIONS) > 2 * len(GROUPS)
