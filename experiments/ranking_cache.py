@@ -144,6 +144,10 @@ def kept_run_metrics(lead: LeadRows, reference: pd.DataFrame) -> pd.DataFrame:
     return metrics.drop(columns=[FRAGMENT]).sort_values("run_id", ignore_index=True)
 
 
+#: Column of :func:`_valid`'s table: the kept file a row came from.
+_FILE = "__file"
+
+
 def _valid(tables: list[pa.Table], digests: dict[str, dict[str, str]]) -> pd.DataFrame:
     """The kept metrics of ``tables`` (one per kept file, in order) still valid under
     ``digests``: each fragment's copy whose lookups' digest is unchanged, from the first file
@@ -157,10 +161,6 @@ def _valid(tables: list[pa.Table], digests: dict[str, dict[str, str]]) -> pd.Dat
     kept = kept[(copy.map(now) == kept[LOOKED_UP]).to_numpy(dtype=bool)]
     first = kept.groupby(FRAGMENT)[_FILE].transform("min")
     return kept[(kept[_FILE] == first).to_numpy(dtype=bool)].drop(columns=[_FILE])
-
-
-#: Column of :func:`_valid`'s table: the kept file a row came from.
-_FILE = "__file"
 
 
 def _stored(metrics: pd.DataFrame, digests: dict[str, dict[str, str]]) -> pa.Table:

@@ -112,8 +112,11 @@ def lead_row_positions(
     rank = np.where(lead, 0, np.where(known, 1, 2))  # lead rows first, unknown flags last
     frames = np.asarray(frame)
     order = np.lexsort((rank, frames, runs))  # stable: ties keep the table's order
+    ordered_runs, ordered_frames = runs[order], frames[order]
     first = np.ones(n, dtype=bool)
-    first[1:] = (np.diff(runs[order]) != 0) | (frames[order][1:] != frames[order][:-1])
+    first[1:] = (ordered_runs[1:] != ordered_runs[:-1]) | (
+        ordered_frames[1:] != ordered_frames[:-1]
+    )
     positions = order[first]
     return positions, ~lead[positions]
 
