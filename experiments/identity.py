@@ -91,8 +91,17 @@ def with_neutral_axes(table: pd.DataFrame) -> pd.DataFrame:
     out = table.copy(deep=False)
     for axis, key, off in NEUTRAL_OPTIONS:
         if key == "name" and not out.empty:
-            out[axis] = out[axis].fillna(off) if axis in out else off
+            out[axis] = _filled(out[axis], off) if axis in out else off
     return out
+
+
+def _filled(values: pd.Series, off: str) -> pd.Series:
+    """``values`` with ``off`` where missing; a category (a report's axes) gets ``off`` among
+    its categories, kept sorted, when it has a missing value."""
+    if isinstance(values.dtype, pd.CategoricalDtype) and values.isna().any():
+        categories = sorted({*values.cat.categories, off})
+        values = values.cat.set_categories(categories)
+    return values.fillna(off)
 
 
 def run_identity(setting: dict[str, Any]) -> dict[str, Any]:

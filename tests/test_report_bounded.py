@@ -10,19 +10,23 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
+from experiments.identity import with_neutral_axes
 from experiments.report.judged_rows import (
     BOX_COLUMNS,
     COUNTED_ONLY,
     KEY_COLUMNS,
     TIME_COLUMNS,
     UNREAD_COLUMNS,
+    cut,
     is_in,
     judged_mask,
     read_columns,
     row_columns,
+    stacked_columns,
 )
 from tests.conftest import PROJECT_ROOT, data_root
 from tests.test_report import env_for, make_report, make_sweep, shared_root
@@ -108,3 +112,41 @@ def test_the_columns_left_unread_are_row_columns_no_step_needs() -> None:
     needed = {*KEY_COLUMNS, *TIME_COLUMNS, *BOX_COLUMNS}
     assert not needed & set(UNREAD_COLUMNS)
     assert set(COUNTED_ONLY) <= set(read_columns())
+
+
+def _fragment(rng: np.random.Generator, detectors: list[str], n: int) -> pd.DataFrame:
+    """Rows as a fragment reads them: an axis and run ids (strings, some missing), a float
+    with NaN, an integer and a bool column."""
+    detector = rng.choice(np.array([*detectors, None], dtype=object), n)
+    return pd.DataFrame({
+        "run_id": pd.array(rng.choice(["r1", "r2", "r3"], n), dtype="str"),
+        "detector": pd.array(detector, dtype="str"),
+        "ttc_camera": np.where(rng.random(n) < 0.2, np.nan, rng.normal(10, 2, n)),
+        "frame": rng.integers(0, 18, n),
+        "is_lead": rng.random(n) < 0.5,
+    })  # fmt: skip
+
+
+def test_stacked_columns_hold_the_rows_pandas_concat_gives() -> None:
+    rng = np.random.default_rng(3)
+    frags = [_fragment(rng, d, 40) for d in (["orb", "akaze"], ["sift"], ["orb", "fast"])]
+    masks = [rng.random(40) < 0.6 for _ in frags]
+    columns = ["run_id", "detector", "ttc_camera", "frame", "is_lead"]
+    parts = [cut(f, m, columns) for f, m in zip(frags, masks, strict=True)]
+    got = stacked_columns(parts)
+    want = pd.concat([f.loc[m, columns] for f, m in zip(frags, masks, strict=True)],
+                     ignore_index=True)  # fmt: skip
+    assert all(not p for p in parts)  # each column freed from the parts once stacked
+    # the axis as a category, its categories sorted: sorting and grouping as the strings do
+    assert list(got["detector"].cat.categories) == ["akaze", "fast", "orb", "sift"]
+    assert got["detector"].isna().tolist() == want["detector"].isna().tolist()
+    assert got.astype({"detector": want["detector"].dtype}).equals(want)
+    assert got.groupby("detector").size().equals(want.groupby("detector").size())
+    assert got["run_id"].dtype == want["run_id"].dtype  # run ids stay strings
+
+
+def test_a_missing_axis_of_a_category_is_filled_with_its_off_value() -> None:
+    rows = pd.DataFrame({"fusion": pd.Categorical(["kalman_cv", None], categories=["kalman_cv"])})
+    filled = with_neutral_axes(rows)["fusion"]
+    assert filled.tolist() == ["kalman_cv", "none"]
+    assert list(filled.cat.categories) == ["kalman_cv", "none"]

@@ -26,6 +26,7 @@ from experiments.report import (
     reference_report,
     truth_report,
 )
+from experiments.report.heap import release_freed_memory
 from experiments.report.html import html_report
 from experiments.report.load import (
     Context,
@@ -33,7 +34,6 @@ from experiments.report.load import (
     load_sweeps,
     make_context,
     reference_for,
-    release_freed_memory,
 )
 from ttc import evaluation as ev
 from ttc.features.model_files import ModelFileError

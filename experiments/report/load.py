@@ -4,9 +4,6 @@ intermediate arrays of a run's frame pair (recomputed through the stage cache)."
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
-import functools
 import json
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -28,6 +25,7 @@ from experiments.flat_configs import flatten_kept
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
 from experiments.report import judged_rows
+from experiments.report.heap import release_freed_memory
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
@@ -74,11 +72,6 @@ def sweep_overrides(sweep_dir: Path) -> list[str]:
     return task + [f"{k}={v} (sweep)" for k, v in params.items()]
 
 
-def _concat(parts: list[pd.DataFrame]) -> pd.DataFrame:
-    """``parts`` one under the other (a new index), or an empty frame."""
-    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
-
-
 def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     """Concatenate sweeps; a run id present in several sweeps is taken from the first. The
     judged rows get ``ms_compute_per_frame`` looked up over every row of all of them
@@ -93,6 +86,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         parts, runs = store.scan_sweep(
             d, judged_rows.read_columns(), exclude=store.UNREAD_RECORD_FIELDS
         )
+        release_freed_memory()  # the records listed: their pages back before the rows come
         if runs.empty:
             continue
         known = runs["run_id"].isin(seen)
@@ -109,7 +103,8 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         run_parts.append(runs)
         seen |= set(runs["run_id"])
         overrides[d.name] = sweep_overrides(d)
-    frames, boxes, runs = _concat(lead_parts), _concat(box_parts), _concat(run_parts)
+    stacked = judged_rows.stacked
+    frames, boxes, runs = stacked(lead_parts), stacked(box_parts), stacked(run_parts)
     frames, runs = with_neutral_axes(frames), with_neutral_axes(runs)  # axes added since
     if not frames.empty:  # a stage one sweep computed gives its time to runs of the others
         times = judged_rows.compute_times(frames, ev.join_counts(counts))
@@ -117,25 +112,6 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         frames = frames.drop(columns=[c for c in judged_rows.COUNTED_ONLY if c in frames])
     release_freed_memory()  # the fragments read and cut: their pages back to the system
     return SweepData(dirs, frames, runs, overrides, repeated, boxes)
-
-
-@functools.cache
-def _libc() -> ctypes.CDLL | None:
-    """The C library when it is glibc (it has ``malloc_trim``), else None."""
-    name = ctypes.util.find_library("c")
-    libc = ctypes.CDLL(name) if name else None
-    return libc if libc is not None and hasattr(libc, "malloc_trim") else None
-
-
-def release_freed_memory() -> None:
-    """Give the heap memory freed since to the system (glibc's ``malloc_trim``: glibc keeps
-    the freed pages of many small allocations; ``grand`` 0–18's report peaks 0.1–0.2 GB lower
-    with it after each step). Costs milliseconds; a no-op without glibc. Arrow's memory pool
-    is left alone: releasing it after each step (``release_unused``) raised the peak by
-    0.4 GB."""
-    libc = _libc()
-    if libc is not None:
-        libc.malloc_trim(0)
 
 
 def run_config(config_json: str, root: Path) -> DictConfig:

@@ -197,7 +197,10 @@ def plot_pareto(ranking: pd.DataFrame) -> plt.Figure:
     own ``ms_per_frame``."""
     time_col = "ms_frame"
     ranking = ranking.assign(
-        **{time_col: ranking["ms_compute_per_frame"].fillna(ranking["ms_per_frame"])}
+        **{time_col: ranking["ms_compute_per_frame"].fillna(ranking["ms_per_frame"])},
+        # the legend in the ranking's order (seaborn orders a category's values by its
+        # categories: the report's axes are categories, experiments.report.judged_rows)
+        **{axis: ranking[axis].astype(object) for axis in ("detector", "descriptor")},
     )
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for ax, col in zip(axes, ("camera_mid_median", "camera_outlier_rate"), strict=True):

@@ -198,7 +198,9 @@ def interactive_table(
     shown = df.copy()
     for c in shown.columns:
         if c not in raw and not pd.api.types.is_numeric_dtype(shown[c]):
-            shown[c] = shown[c].map(lambda v: esc(fmt(v)))
+            # each value as text (a category's map would stay a category, which itables
+            # writes as codes)
+            shown[c] = shown[c].astype(object).map(lambda v: esc(fmt(v)))
         elif pd.api.types.is_float_dtype(shown[c]):
             shown[c] = shown[c].replace([np.inf, -np.inf], np.nan).round(4)
     return itables.to_html_datatable(
