@@ -114,6 +114,7 @@ def build_report(
     fp5_table = fp5.fp5_report(data, reference, ctx, out, pictures) if has_rows else None
     lap("fp5")
     fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
+    ctx.drop_details()
     lap("fp6")
     fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
     lap("fp7")
@@ -159,6 +160,7 @@ def build_drives_report(
             continue
         fp5_table = fp5.fp5_report(part, reference, ctx, folder, pictures)
         fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
+        ctx.drop_details()
         fp7_tables = fp7.fp7_report(part, reference, folder)
         object_rankings[name] = objects_report.recording_objects_report(part, ctx, folder)
         if html:
