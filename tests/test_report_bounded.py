@@ -26,6 +26,7 @@ from experiments.report.judged_rows import (
     judged_mask,
     read_columns,
     row_columns,
+    stacked,
     stacked_columns,
 )
 from tests.conftest import PROJECT_ROOT, data_root
@@ -150,3 +151,15 @@ def test_a_missing_axis_of_a_category_is_filled_with_its_off_value() -> None:
     filled = with_neutral_axes(rows)["fusion"]
     assert filled.tolist() == ["kalman_cv", "none"]
     assert list(filled.cat.categories) == ["kalman_cv", "none"]
+
+
+def test_sweeps_stacked_keep_their_axes_as_one_category() -> None:
+    """Two sweeps' judged rows (the report of several folders): the axis stays a category,
+    its categories the sorted union, each row's value kept."""
+    first = pd.DataFrame({"detector": pd.Categorical(["sift", "orb"]), "frame": [1, 2]})
+    second = pd.DataFrame({"detector": pd.Categorical(["akaze", None]), "frame": [3, 4]})
+    both = stacked([first, second])
+    assert list(both["detector"].cat.categories) == ["akaze", "orb", "sift"]
+    assert both["detector"].tolist()[:3] == ["sift", "orb", "akaze"]
+    assert both["detector"].isna().tolist() == [False, False, False, True]
+    assert both.index.tolist() == [0, 1, 2, 3] and both["frame"].tolist() == [1, 2, 3, 4]
