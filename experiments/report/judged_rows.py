@@ -52,8 +52,8 @@ UNREAD_COLUMNS: tuple[str, ...] = (
     "lidar_outliers_prev", "lidar_outliers_curr",
 )  # fmt: skip
 #: Fragments read between two :func:`~experiments.report.heap.release_freed_memory` calls
-#: of :func:`read_rows` (``grand`` 0–18: 175 fragments; its load step peaked 0.2 GB higher
-#: without them, and a call after every fragment costs 25 ms of system time each).
+#: of :func:`read_rows` (``grand`` 0–18: 175 fragments; its load step peaked 0.28 GB higher
+#: without them, and a call after every fragment costs ≈ 25 ms of system time each).
 TRIM_EVERY = 16
 #: Columns read only to count and look up the stage times (:data:`TIME_COLUMNS`), dropped
 #: from the judged rows once ``ms_compute_per_frame`` is known (:func:`compute_times`).
