@@ -168,7 +168,7 @@ Columns = dict[str, ExtensionArray]
 
 def as_category(values: ExtensionArray) -> pd.Categorical:
     """An axis's values (strings: a few distinct values over thousands of rows) as a category:
-    the same values in a fraction of the memory (``grand`` 0–18's judged rows 317 → 210 MB);
+    the same values in a fraction of the memory (``grand`` 0–18's judged rows 317 → 225 MiB);
     :func:`stacked_columns` sorts the categories of the stacked column, so that it sorts and
     groups as the strings."""
     codes, distinct = pd.factorize(values)
