@@ -163,3 +163,19 @@ def test_sweeps_stacked_keep_their_axes_as_one_category() -> None:
     assert both["detector"].tolist()[:3] == ["sift", "orb", "akaze"]
     assert both["detector"].isna().tolist() == [False, False, False, True]
     assert both.index.tolist() == [0, 1, 2, 3] and both["frame"].tolist() == [1, 2, 3, 4]
+
+
+def test_categories_sorted_when_parts_list_them_in_another_order() -> None:
+    """Fragments code an axis in the order its values first come; the same values in another
+    order still stack into sorted categories (a category's dtype equal as a set is not
+    recoded by ``astype``)."""
+    a = pd.DataFrame({"detector": pd.array(["orb", "sift", "akaze"], dtype="str")})
+    b = pd.DataFrame({"detector": pd.array(["akaze", "orb"], dtype="str")})
+    c = pd.DataFrame({"detector": pd.array(["sift", "akaze", "orb"], dtype="str")})
+    parts = [cut(f, np.ones(len(f), dtype=bool), ["detector"]) for f in (a, b, c)]
+    got = stacked_columns(parts)["detector"]
+    assert list(got.cat.categories) == ["akaze", "orb", "sift"]
+    assert got.tolist() == ["orb", "sift", "akaze", "akaze", "orb", "sift", "akaze", "orb"]
+    frames = [pd.DataFrame({"detector": pd.Categorical(v, categories=v)}) for v in
+              (["sift", "orb"], ["orb", "sift"])]  # fmt: skip
+    assert list(stacked(frames)["detector"].cat.categories) == ["orb", "sift"]

@@ -14,7 +14,7 @@ from collections.abc import Set as AbstractSet
 import numpy as np
 import pandas as pd
 from pandas.api.extensions import ExtensionArray
-from pandas.api.types import is_string_dtype, union_categoricals
+from pandas.api.types import is_string_dtype
 
 from experiments.identity import with_neutral_axes
 from experiments.recordings import run_ids_by_recording, setting_of
@@ -51,9 +51,10 @@ UNREAD_COLUMNS: tuple[str, ...] = (
     "box_class", "box_confidence", "box_x", "box_y", "box_shared_matches",
     "lidar_outliers_prev", "lidar_outliers_curr",
 )  # fmt: skip
-#: Fragments read between two :func:`~experiments.report.heap.release_freed_memory` calls
-#: of :func:`read_rows` (``grand`` 0–18: 175 fragments; its load step peaked 0.28 GB higher
-#: without them, and a call after every fragment costs ≈ 25 ms of system time each).
+#: Fragments read (:func:`read_rows`), and columns stacked (:func:`stacked_columns`), between
+#: two :func:`~experiments.report.heap.release_freed_memory` calls (``grand`` 0–18: 175
+#: fragments; its load step peaked 0.28 GB higher without them, and a call after every
+#: fragment costs ≈ 25 ms of system time each).
 TRIM_EVERY = 16
 #: Columns read only to count and look up the stage times (:data:`TIME_COLUMNS`), dropped
 #: from the judged rows once ``ms_compute_per_frame`` is known (:func:`compute_times`).
@@ -189,38 +190,43 @@ def cut(part: pd.DataFrame, rows: np.ndarray, columns: list[str]) -> Columns:
     }
 
 
+def category_union(dtypes: list) -> pd.Index | None:
+    """The categories of values stacked from parts of ``dtypes``: the sorted union of theirs,
+    so that the stacked column sorts and groups as the strings; None unless every one is a
+    category (pandas would fall back to one string object per row)."""
+    if not dtypes or not all(isinstance(d, pd.CategoricalDtype) for d in dtypes):
+        return None
+    return pd.Index(sorted(set().union(*(d.categories for d in dtypes))))
+
+
 def stacked_columns(parts: list[Columns]) -> pd.DataFrame:
     """``parts`` (each with the same columns) one under the other with a new index, built a
     column at a time, each column of the parts freed once stacked: memory of the parts and
     one column, not twice the parts (``grand`` 0–18's load step 0.2 GB lower). ``parts`` is
-    emptied. A column that is a category in every part stays one, its categories the sorted
-    union of theirs (pandas would fall back to one string object per row)."""
+    emptied. A category in every part stays one (:func:`category_union`)."""
     out: dict[str, pd.Series] = {}
     for i, column in enumerate(list(parts[0]) if parts else []):
         if i % TRIM_EVERY == TRIM_EVERY - 1:  # the freed pieces (small: glibc's heap) back
             release_freed_memory()
-        pieces = [p.pop(column) for p in parts]
-        if all(isinstance(a.dtype, pd.CategoricalDtype) for a in pieces):
-            out[column] = pd.Series(union_categoricals(pieces, sort_categories=True))
-        else:
-            out[column] = pd.concat([pd.Series(a, copy=False) for a in pieces], ignore_index=True)
+        pieces = [pd.Series(p.pop(column), copy=False) for p in parts]
+        union = category_union([s.dtype for s in pieces])
+        if union is not None:  # recoded (astype keeps a category equal as a set as it is)
+            pieces = [s.cat.set_categories(union) for s in pieces]
+        out[column] = pd.concat(pieces, ignore_index=True)
         del pieces
     return pd.DataFrame(out, copy=False)  # not consolidated: no copy of every column
 
 
 def stacked(parts: list[pd.DataFrame]) -> pd.DataFrame:
-    """``parts`` one under the other with a new index (an empty frame for none); a column that
-    is a category in every part stays one, its categories the sorted union of theirs (pandas
-    would fall back to one string object per row)."""
+    """``parts`` one under the other with a new index (an empty frame for none); a category
+    in every part stays one (:func:`category_union`)."""
     if len(parts) < 2:  # one sweep's rows as they are: no copy
         return parts[0].reset_index(drop=True) if parts else pd.DataFrame()
-    union: dict[str, pd.CategoricalDtype] = {}
-    for column in parts[0].columns:
-        dtypes = [p[column].dtype if column in p else None for p in parts]
-        if all(isinstance(d, pd.CategoricalDtype) for d in dtypes):
-            values = sorted(set().union(*(d.categories for d in dtypes)))
-            union[column] = pd.CategoricalDtype(pd.Index(values))
-    return pd.concat([p.astype(union) if union else p for p in parts], ignore_index=True)
+    unions = {c: category_union([p[c].dtype if c in p else None for p in parts])
+              for c in parts[0].columns}  # fmt: skip
+    union = {c: v for c, v in unions.items() if v is not None}
+    recoded = [p.assign(**{c: p[c].cat.set_categories(v) for c, v in union.items()}) for p in parts]
+    return pd.concat(recoded, ignore_index=True)
 
 
 def compute_times(frames: pd.DataFrame, counts: ev.StageCounts) -> pd.Series:
