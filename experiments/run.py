@@ -55,6 +55,7 @@ from experiments.config import (
 from experiments.data.first_run import ensure_data
 from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
 from experiments.sweep.batch import run_batch
+from experiments.sweep.mode_composition import compose_once
 from experiments.sweep.warm_up import warm_up  # noqa: F401 (the ttc launcher's workers call it)
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
@@ -64,6 +65,7 @@ from ttc.reasons import FRAME_ERROR, NO_LEAD_BOX
 from ttc.settings import AXES
 
 register_configs()
+compose_once()  # Hydra composes a multirun's config twice (hydra#3440)
 
 
 def output_dir() -> Path:

@@ -59,8 +59,10 @@ def hydra_env():
 
 
 def same_as_hydra(composer: Composer, job: list[str]) -> None:
-    """The composer's config (unresolved and resolved), setting and run id of ``job`` equal
-    those of Hydra's ``compose`` with the same overrides."""
+    """The composer's config (unresolved and resolved), its shared config's keys outside
+    ``hydra``, setting and run id of ``job`` equal those of Hydra's ``compose`` with the same
+    overrides (jobs read one after another: a part left in the shared scratch config would
+    show in the next)."""
     expected = compose(config_name="config", overrides=job, return_hydra_config=True)
     got = composer.config(job)
     assert OmegaConf.to_container(got, resolve=False) == OmegaConf.to_container(
@@ -70,6 +72,11 @@ def same_as_hydra(composer: Composer, job: list[str]) -> None:
     assert OmegaConf.to_container(OmegaConf.masked_copy(got, task), resolve=True) == (
         OmegaConf.to_container(OmegaConf.masked_copy(expected, task), resolve=True)
     ), job
+    with composer.shared_config(job) as shared:  # the validator's view: the job's own keys
+        for resolve in (False, True):
+            assert OmegaConf.to_container(OmegaConf.masked_copy(shared, task), resolve=resolve) == (
+                OmegaConf.to_container(OmegaConf.masked_copy(expected, task), resolve=resolve)
+            ), job
     setting = composer.setting(job)
     assert setting == setting_config(expected), job
     assert run_id(got) == run_id(expected), job
@@ -140,8 +147,9 @@ def test_a_recording_that_sets_other_groups_is_a_part_too(hydra_env) -> None:
     sets_camera = ("dataset=kitti_odometry", "dataset=kitti_raw_0009")
     overlapping = [j for j in jobs if set(sets_camera) & set(j) and "camera_ttc=mean_ratio" in j]
     assert len(derived) == len(jobs) - len(overlapping)
-    # the template, its 5 variants, and the overlapping jobs (their config and their setting)
-    assert composer.full_compositions == 1 + 5 + 2 * len(overlapping)
+    # the template, its 5 variants, and the overlapping jobs (their config, shared config
+    # and setting: same_as_hydra asks for each)
+    assert composer.full_compositions == 1 + 5 + 3 * len(overlapping)
 
 
 def test_an_entry_that_reads_another_follows_it(hydra_env) -> None:

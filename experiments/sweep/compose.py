@@ -30,11 +30,12 @@ and its converter sees only those entries (:data:`experiments.config.SETTINGS_FI
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import itertools
 import json
 import operator
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -110,6 +111,7 @@ class Composer:
         self._closures: dict[str, set[str]] = {}
         self._positions: dict[str, tuple[tuple[int, ...], Any]] = {}
         self._touched: dict[int, set[str]] = {}  # position → top-level keys of its extras
+        self._scratch: DictConfig | None = None  # the template's config, parts swapped in
         if template is not None:
             self._set_template(list(template))
 
@@ -252,16 +254,37 @@ class Composer:
             return None
         return parts
 
-    def _swapped(self, parts: Sequence[Part]) -> DictConfig:
-        """The template's config with ``parts`` swapped in (shared when there is at most one
-        part: not to be modified)."""
+    @contextlib.contextmanager
+    def _swapped(self, parts: Sequence[Part]) -> Iterator[DictConfig]:
+        """The template's config with ``parts`` swapped in, to read inside the ``with`` block
+        only (shared: not to be modified). With at most one part, the template's or the
+        variant's composition; else one scratch copy of the template (made once: a deep copy
+        costs ≈ 15 ms) with the parts swapped in, and the template's top-level nodes they
+        touched and its group choices put back after the block."""
         if not parts:
-            return self.base
+            yield self.base
+            return
         if len(parts) == 1 and parts[0].config is not None:
-            return parts[0].config
-        cfg = copy.deepcopy(self.base)
-        _swap(cfg, parts)
-        return cfg
+            yield parts[0].config
+            return
+        tops = {key.split(".")[0] for part in parts for key in part.keys}
+        if not tops <= set(self.base.keys()):  # a part adds a top-level key: a copy of its own
+            cfg = copy.deepcopy(self.base)
+            _swap(cfg, parts)
+            yield cfg
+            return
+        if self._scratch is None:
+            self._scratch = copy.deepcopy(self.base)
+        scratch = self._scratch
+        _swap(scratch, parts)
+        try:
+            yield scratch
+        finally:
+            with open_dict(scratch):
+                for top in tops:  # a copy of the template's own node, interpolations kept
+                    scratch[top] = self.base._get_node(top)
+            with open_dict(scratch.hydra):
+                scratch.hydra.runtime.choices = self.base.hydra.runtime._get_node("choices")
 
     def config(self, overrides: Sequence[str]) -> DictConfig:
         """The config of the job with these overrides, a new object (a batch's
@@ -286,14 +309,17 @@ class Composer:
             cfg.hydra.job.override_dirname = override_dirname(task, naming)
         return cfg
 
-    def shared_config(self, overrides: Sequence[str]) -> DictConfig:
-        """The config of the job with these overrides, to read only: shared with the
-        composer when it is the template's or a variant's (its Hydra keys may be those of
-        the template), else :meth:`config`'s."""
+    @contextlib.contextmanager
+    def shared_config(self, overrides: Sequence[str]) -> Iterator[DictConfig]:
+        """The config of the job with these overrides, to read inside the ``with`` block only
+        (its Hydra keys may be those of the template): :meth:`_swapped`'s when the job is
+        derived from parts, else Hydra's composition."""
         parts = self.parts(overrides)
-        if parts is not None and (not parts or (len(parts) == 1 and parts[0].config is not None)):
-            return self._swapped(parts)
-        return self.config(overrides)
+        if parts is None:
+            yield self.full(overrides)
+            return
+        with self._swapped(parts) as cfg:
+            yield cfg
 
     def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
         """The :func:`experiments.identity.setting_config` of the job with these overrides;
@@ -308,7 +334,8 @@ class Composer:
             memo = (key, positions, values(overrides))
             if memo not in self._entries:  # once per distinct value of what reaches it
                 touching = [p for p in parts if p.position in positions]
-                self._entries[memo] = setting_entry(self._swapped(touching), key)
+                with self._swapped(touching) as cfg:
+                    self._entries[memo] = setting_entry(cfg, key)
             entries[key] = self._entries[memo]
         return finish_setting(entries)
 

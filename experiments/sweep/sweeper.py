@@ -141,15 +141,15 @@ class SweepSweeper(Sweeper):
         composer = self._composer()
         validate = get_method(self.validator) if self.validator else None
         for overrides in validation_jobs(batch):
-            cfg = composer.shared_config(overrides)
-            if validate is None:
-                continue
-            try:
-                validate(cfg)
-            except ValueError as exc:
-                raise ConfigCompositionException(
-                    f"{exc}\n(job overrides: {' '.join(overrides)})"
-                ) from None
+            with composer.shared_config(overrides) as cfg:
+                if validate is None:
+                    continue
+                try:
+                    validate(cfg)
+                except ValueError as exc:
+                    raise ConfigCompositionException(
+                        f"{exc}\n(job overrides: {' '.join(overrides)})"
+                    ) from None
 
     def sweep(self, arguments: list[str]) -> Any:
         """Hydra's basic sweep, except that a failed job does not raise (it is logged) and
