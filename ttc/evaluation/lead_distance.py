@@ -16,6 +16,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ttc.robust import quantiles
 from ttc.steps.lidar import LaneCropParams, crop_to_lane
 
 #: Largest gap (m) inside one Euclidean cluster: bridges neighbouring HDL-64E rings on a car's
@@ -67,7 +68,7 @@ def rear_distance(
     if sizes[main] < min_points:
         return float("nan")
     x = xyz[labels == main, 0]
-    lo, hi = np.quantile(x, band)
+    lo, hi = quantiles(x, band)
     return float(np.mean(x[(x >= lo) & (x <= hi)]))
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ttc.robust import MAD_TO_SIGMA, column_medians, median
+from ttc.robust import MAD_TO_SIGMA, column_medians, median, quantiles
 from ttc.steps.box_matching import points_in_rois, shrink_rois
 
 
@@ -82,7 +82,7 @@ def iqr(prev_xy: np.ndarray, curr_xy: np.ndarray, params: KeypointFilterParams) 
     d = displacement_lengths(prev_xy, curr_xy)
     if len(d) == 0:
         return np.ones(0, dtype=bool)
-    q1, q3 = np.quantile(d, [0.25, 0.75])
+    q1, q3 = quantiles(d, (0.25, 0.75))
     spread = params.iqr_k * (q3 - q1)
     return (d >= q1 - spread) & (d <= q3 + spread)
 

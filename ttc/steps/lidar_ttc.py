@@ -74,7 +74,7 @@ def closest(points: np.ndarray, params: LidarTTCParams) -> RearDistance:
 def quantile(points: np.ndarray, params: LidarTTCParams) -> RearDistance:
     """x at ``params.quantile`` (linear interpolation); outliers: points in front of it."""
     x = points[:, 0]
-    d = float(np.quantile(x, params.quantile))
+    d = float(robust.quantile(x, params.quantile))
     return RearDistance(d, int(np.count_nonzero(x < d)))
 
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ttc.robust import quantile, quantiles
 from ttc.steps.box_matching import points_in_rois, shrink_rois
 from ttc.steps.lidar import project_to_image
 
@@ -80,7 +81,7 @@ def object_scan_mask(points: np.ndarray, params: ObjectLidarParams) -> np.ndarra
 def nearest_face(x: np.ndarray) -> float:
     """Forward distance (m) of an object's nearest face from its points' x (m): the
     :data:`NEAREST_FACE_QUANTILE` quantile; NaN without points."""
-    return float(np.quantile(x, NEAREST_FACE_QUANTILE)) if len(x) else float("nan")
+    return float(quantile(x, NEAREST_FACE_QUANTILE)) if len(x) else float("nan")
 
 
 def depth_extent(x: np.ndarray) -> float:
@@ -88,7 +89,7 @@ def depth_extent(x: np.ndarray) -> float:
     for a face turned to the camera, metres for a car seen along its side. NaN without points."""
     if not len(x):
         return float("nan")
-    lo, hi = np.quantile(x, SPREAD_QUANTILES)
+    lo, hi = quantiles(x, SPREAD_QUANTILES)
     return float(hi - lo)
 
 
