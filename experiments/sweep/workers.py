@@ -1,6 +1,7 @@
 """What runs in a sweep's worker processes: the sweep state restored once per worker, a job's
-config from :class:`experiments.sweep.compose.Composer`, Hydra's ``run_job``, the warm-up
-while the sweep is planned, and the markers that tell which jobs a dead worker was running.
+config from :class:`experiments.sweep.compose.Composer`, its run
+(:mod:`experiments.sweep.job_run`), the warm-up while the sweep is planned, and the markers
+that tell which jobs a dead worker was running.
 
 A worker restores the sweep's shared state (Hydra context, master config, task function,
 Hydra's singletons) once per sweep, not once per job: the stock joblib launcher pickles it
@@ -31,12 +32,13 @@ from typing import Any
 import cloudpickle
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.singleton import Singleton
-from hydra.core.utils import JobReturn, run_job, setup_globals
+from hydra.core.utils import JobReturn, setup_globals
 from joblib import effective_n_jobs
 from joblib.externals.loky import get_reusable_executor, process_executor
 from omegaconf import DictConfig, open_dict
 
 from experiments.sweep.compose import Composer
+from experiments.sweep.job_run import run_sweep_job
 
 #: Folder (in the sweep folder) of the markers of the jobs running right now: ``<job idx>``.
 STARTED_DIR = ".launcher"
@@ -163,7 +165,8 @@ def worker_death(exc: BaseException) -> str:
 
 
 def execute_job(idx: int, overrides: Sequence[str], state: SweepState) -> JobReturn:
-    """One job in a worker: its config (:meth:`Composer.config`), then Hydra's ``run_job``.
+    """One job in a worker: its config (:meth:`Composer.config`), then Hydra's ``run_job``
+    without its copies (:func:`experiments.sweep.job_run.run_sweep_job`).
     ``<state.started>/<idx>`` exists while it runs (it stays when the worker dies)."""
     allow_worker_growth()  # a worker that did not warm up (a job re-run alone)
     marker = Path(state.started) / str(idx)
@@ -173,13 +176,7 @@ def execute_job(idx: int, overrides: Sequence[str], state: SweepState) -> JobRet
     with open_dict(sweep_config):
         sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
         sweep_config.hydra.job.num = idx
-    ret = run_job(  # sets the job's HydraConfig
-        hydra_context=worker["hydra_context"],
-        config=sweep_config,
-        task_function=worker["task_function"],
-        job_dir_key="hydra.sweep.dir",
-        job_subdir_key="hydra.sweep.subdir",
-    )
+    ret = run_sweep_job(worker["task_function"], sweep_config, worker["hydra_context"])
     marker.unlink(missing_ok=True)
     return ret
 
