@@ -101,7 +101,7 @@ class SweepCallback(Callback):
         died: the launcher reports that) as ``failed`` with the reason."""
         if job_return.status != JobStatus.FAILED:
             return
-        from experiments.run import record_crash  # noqa: PLC0415 (slow imports)
+        from experiments.job import record_crash  # noqa: PLC0415 (slow imports)
 
         error = job_return._return_value
         message = f"{type(error).__name__}: {error}" if error is not None else "job failed"

@@ -23,7 +23,7 @@ from experiments.config import (
     run_id,
     settings_from_config,
 )
-from experiments.run import no_lead_line
+from experiments.job import no_lead_line
 from tests.conftest import PROJECT_ROOT
 from ttc import reasons
 from ttc.engine.cache import StageCache

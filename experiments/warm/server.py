@@ -36,6 +36,7 @@ from experiments.warm.identity import idle_seconds, server_key
 PRELOAD = (
     "experiments.cli",
     "experiments.run",
+    "experiments.job",
     "experiments.collect",
     "experiments.callbacks",
     "experiments.reference_store",

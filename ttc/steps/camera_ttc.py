@@ -16,7 +16,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.distance import pdist
 
 from ttc import reasons
 from ttc.robust import median
@@ -92,6 +91,8 @@ class CameraTTCResult:
 
 def distance_ratios(prev_xy: np.ndarray, curr_xy: np.ndarray, min_dist: float) -> np.ndarray:
     """Ratios ``d_curr / d_prev`` over the pairs i < j with ``d_curr ≥ min_dist`` (pixels)."""
+    from scipy.spatial.distance import pdist  # noqa: PLC0415 (0.28 s to import: not at planning)
+
     if len(curr_xy) < 2:
         return np.empty(0)
     d_prev = pdist(prev_xy)
@@ -108,6 +109,8 @@ def vertical_ratios(prev_xy: np.ndarray, curr_xy: np.ndarray, min_dist: float) -
     horizontal separation does not scale like the distance of the car's nearest face, while
     the vertical separation of two points above one another (at one depth) scales exactly
     with that depth (the ``camera_ttc=vertical_ratio`` estimator, the median of these)."""
+    from scipy.spatial.distance import pdist  # noqa: PLC0415 (as in distance_ratios)
+
     if len(curr_xy) < 2:
         return np.empty(0)
     du_curr = pdist(curr_xy[:, :1])

@@ -13,9 +13,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from ttc import reasons, robust
 
@@ -112,6 +109,10 @@ def cluster(points: np.ndarray, params: LidarTTCParams) -> RearDistance:
     Outliers: points outside the largest cluster. NaN if that cluster is below
     ``min_cluster_size``.
     """
+    from scipy.sparse import csr_matrix  # noqa: PLC0415 (slow to import: not at planning)
+    from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+    from scipy.spatial import cKDTree  # noqa: PLC0415
+
     xyz = points[:, :3]
     n = len(xyz)
     pairs = cKDTree(xyz).query_pairs(params.cluster_tolerance, output_type="ndarray")
