@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -80,6 +81,30 @@ def test_jobs_composed_from_the_sweepers_compositions(loader_and_master) -> None
     assert batch.batch == "batch-0123" and batch.hydra.overrides.task[-1] == "batch=batch-0123"
     assert composer.full_compositions == 0
     assert all(OmegaConf.is_missing(c.hydra.job, "num") for c in known.values())
+
+
+def test_workers_start_from_the_sweepers_parts(loader_and_master) -> None:
+    """The state a worker gets (:meth:`Composer.shared`, through pickle as the launcher sends
+    it) holds the template's composition and the parts, not the variants' compositions: the
+    worker's composer composes nothing and gives every job Hydra's config."""
+    loader, master = loader_and_master
+    jobs = [["+experiment=fp6_grid", "keypoint_filter=zscore", f"detector={d}",
+             f"descriptor={e}", f"matcher={m}", "dataset.last=5"]
+            for d, e, m in itertools.product(("fast", "sift", "orb"), ("brief", "akaze"),
+                                             ("bf", "flann"))]  # fmt: skip
+    sweeper = Composer(loader, master)
+    for job in variant_jobs(jobs):  # what the sweeper's validation composes
+        sweeper.setting(job)
+    assert sweeper.full_compositions == 1 + 2 + 1 + 1
+    known, template, earlier, parts = pickle.loads(pickle.dumps(sweeper.shared()))
+    assert list(known) == [tuple(template)] and earlier is None
+    detached = [p for p in parts.values() if p is not None]
+    assert detached and all(p.config is None for p in detached)
+    assert all(p.node._get_parent() is None for p in detached if OmegaConf.is_config(p.node))
+    worker = Composer(loader, master, known, template, earlier, parts)
+    for job in jobs[::-1]:
+        assert comparable(worker.config(job)) == comparable(loader.load_sweep_config(master, job))
+    assert worker.full_compositions == 0
 
 
 def test_a_value_it_cannot_prove_local_goes_through_hydra(loader_and_master) -> None:

@@ -36,7 +36,6 @@ import itertools
 import json
 import operator
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -54,31 +53,11 @@ from experiments.sweep.containers import (
     references,
 )
 from experiments.sweep.earlier import EarlierPlan
+from experiments.sweep.parts import Part, detached, swap
 from ttc.settings import Settings
 
 #: The override naming the batch a job computes (:mod:`experiments.sweep.plan`).
 BATCH_PREFIX = "batch="
-
-
-@dataclass(frozen=True)
-class Part:
-    """What one local override changes: its config key, that key's node and group choice in
-    the variant's composition, the variant's composition itself, and the nodes of the keys
-    elsewhere it also sets (a ``@package _global_`` option: ``dataset=kitti_odometry`` sets
-    its own lidar crop and camera pair distance)."""
-
-    position: int
-    item: str
-    key: str
-    node: Any
-    choice: str | None
-    config: DictConfig | None  # None: the variant is an earlier plan's (another template)
-    extras: tuple[tuple[str, Any], ...] = ()  # (dotted key, node) it also sets elsewhere
-
-    @property
-    def keys(self) -> tuple[str, ...]:
-        """Every dotted key this part sets."""
-        return (self.key, *(k for k, _ in self.extras))
 
 
 class Composer:
@@ -92,12 +71,14 @@ class Composer:
         known: Mapping[tuple[str, ...], DictConfig] | None = None,
         template: Sequence[str] | None = None,
         earlier: EarlierPlan | None = None,
+        parts: Mapping[tuple[int, str], Part | None] | None = None,
     ) -> None:
         """``loader``: Hydra's config loader; ``master``: the multirun's master config;
         ``known``: Hydra's compositions of some jobs made from the same ``master`` (the
         sweeper's, handed to the workers); ``template``: the template job (default: the
         first job asked for); ``earlier``: an earlier plan of the sweep folder, whose
-        variants serve where they can (:mod:`experiments.sweep.earlier`)."""
+        variants serve where they can (:mod:`experiments.sweep.earlier`); ``parts``: the
+        parts another composer of the same template found (:meth:`shared`)."""
         self.loader, self.master = loader, master
         self.known: dict[tuple[str, ...], DictConfig] = dict(known or {})
         self.parser = OverridesParser.create()
@@ -114,6 +95,7 @@ class Composer:
         self._scratch: DictConfig | None = None  # the template's config, parts swapped in
         if template is not None:
             self._set_template(list(template))
+        self._parts.update(parts or {})
 
     # -- Hydra's compositions ---------------------------------------------------------------
     def hydra(self, overrides: Sequence[str]) -> DictConfig:
@@ -134,9 +116,21 @@ class Composer:
         return self.loader.load_sweep_config(self.master, list(overrides))
 
     def shared(self) -> tuple[Any, ...]:
-        """(template, kept compositions, earlier plan): what another process's composer
-        starts from (``Composer(loader, master, *shared)``)."""
-        return dict(self.known), self.template, self.earlier
+        """What another process's composer starts from (``Composer(loader, master,
+        *shared)``): the compositions no part stands for (the template's among them), the
+        template and the parts found so far, each without its variant's composition and its
+        nodes copies of their own (:func:`experiments.sweep.parts.detached`). A worker swaps parts' nodes in and reads
+        nothing else of a variant: unpickling the variants' and an earlier plan's 14
+        compositions cost each worker ≈ 0.15 s before its first job."""
+        assert self.template is not None
+        stand_in = {
+            tuple([*self.template[:position], item, *self.template[position + 1 :]])
+            for (position, item), part in self._parts.items()
+            if part is not None and part.config is not None
+        }
+        known = {key: cfg for key, cfg in self.known.items() if key not in stand_in}
+        parts = {memo: None if p is None else detached(p) for memo, p in self._parts.items()}
+        return known, self.template, None, parts
 
     # -- jobs from parts --------------------------------------------------------------------
     def _set_template(self, overrides: list[str]) -> None:
@@ -270,13 +264,13 @@ class Composer:
         tops = {key.split(".")[0] for part in parts for key in part.keys}
         if not tops <= set(self.base.keys()):  # a part adds a top-level key: a copy of its own
             cfg = copy.deepcopy(self.base)
-            _swap(cfg, parts)
+            swap(cfg, parts)
             yield cfg
             return
         if self._scratch is None:
             self._scratch = copy.deepcopy(self.base)
         scratch = self._scratch
-        _swap(scratch, parts)
+        swap(scratch, parts)
         try:
             yield scratch
         finally:
@@ -301,7 +295,7 @@ class Composer:
         if parts is None:
             return self.full(overrides)
         cfg = copy.deepcopy(self.base)
-        _swap(cfg, parts)
+        swap(cfg, parts)
         task = [o for o in self.parser.parse_overrides(overrides) if not o.is_hydra_override()]
         with open_dict(cfg.hydra):
             cfg.hydra.overrides.task = [o.input_line for o in task]
@@ -371,18 +365,6 @@ def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
                 seen.add((position, item))
                 out.append([*first[:position], item, *first[position + 1 :]])
     return out
-
-
-def _swap(cfg: DictConfig, parts: Sequence[Part]) -> None:
-    """Set each part's node (a copy) and group choice on ``cfg``."""
-    for part in parts:
-        with open_dict(cfg):
-            OmegaConf.update(cfg, part.key, copy.deepcopy(part.node), merge=False)
-            for key, node in part.extras:
-                OmegaConf.update(cfg, key, copy.deepcopy(node), merge=False)
-        if part.choice is not None:
-            with open_dict(cfg.hydra):
-                cfg.hydra.runtime.choices[part.key] = part.choice
 
 
 def core_settings(settings: Sequence[dict[str, Any]]) -> list[Settings | Exception]:
