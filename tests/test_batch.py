@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -117,6 +118,19 @@ def test_finished_sweep_launches_no_worker(two_ways, which) -> None:
     assert two_ways["after"] == two_ways["before"]  # no record, rows or lock file touched
     jobs = two_ways["tmp"] / "batched" / "grid" / "jobs"
     assert sorted(p.name for p in jobs.iterdir()) == ["0", "1", "2"]  # the first run's jobs
+
+
+def test_a_changed_axis_warms_the_workers_up(two_ways, tmp_path) -> None:
+    """A re-run with one axis changed into the same folder: the folder holds as many records
+    as the sweep has jobs, yet its first setting has none, so the workers start while the
+    sweep is planned (they started only at the launch while the records were counted)."""
+    folder = tmp_path / "results"
+    shutil.copytree(two_ways["tmp"] / "batched", folder)
+    changed = [a if not a.startswith("lidar_ttc=") else "lidar_ttc=quantile" for a in GRID]
+    proc = run(changed, folder, two_ways["tmp"] / "cache")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "16 settings: 0 already complete" in proc.stdout
+    assert "Starting 2 workers while the sweep is planned" in proc.stdout + proc.stderr
 
 
 def test_a_recomputed_setting_of_a_batch_keeps_the_others(two_ways, tmp_path) -> None:

@@ -152,6 +152,23 @@ def records_missing(sweep_dir: Path, jobs: Sequence[Sequence[str]]) -> bool:
         return sum(e.name.endswith(".json") for e in entries) < len(jobs)
 
 
+def first_record_missing(
+    sweep_dir: Path, composer: Composer, jobs: Sequence[Sequence[str]]
+) -> bool:
+    """True when the first job's setting has no run record in the sweep folder: the sweep
+    will compute. A folder holding as many records as the sweep has jobs (a sweep re-run with
+    one axis changed) says nothing by their count; its first setting's run id does (its
+    composition is the composer's template, which validation composes anyway). False when
+    it cannot be told (the composition fails: validation says why)."""
+    if not jobs:
+        return False
+    try:
+        run_id = setting_hash(composer.setting(jobs[0]))
+    except Exception:  # noqa: BLE001 (validation reports the same problem)
+        return False
+    return not store.run_paths(sweep_dir, run_id)[1].exists()
+
+
 def _job(batch: list[dict[str, Any]], sweep_dir: Path, plan: Plan) -> list[str]:
     """The overrides of the job computing ``batch`` (writes its plan file when > 1)."""
     if len(batch) == 1:

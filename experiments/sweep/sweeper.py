@@ -209,11 +209,14 @@ class SweepSweeper(Sweeper):
         key = planning.plan_key(batch, self.config)
         plan = planning.finished_from_memory(sweep_dir, key, self.config)
         if plan is None:  # validate, then plan (the launcher's workers start meanwhile)
-            if hasattr(self.launcher, "warm_up") and planning.records_missing(sweep_dir, batch):
+            warm = hasattr(self.launcher, "warm_up")
+            if warm and planning.records_missing(sweep_dir, batch):
                 self.launcher.warm_up()
             kept_key, reuse_key = compositions_key(key, self.config), earlier_key(self.config)
             composer = self._composer(load_earlier(sweep_dir, reuse_key))
             composer.known.update(load_compositions(sweep_dir, kept_key))
+            if warm and planning.first_record_missing(sweep_dir, composer, batch):
+                self.launcher.warm_up()  # once: a second call does nothing
             made = composer.full_compositions
             self.validate_batch_is_legal(batch)
             limit = max(1, self.max_settings_per_job)
