@@ -128,6 +128,9 @@ def test_typo_in_override_fails_fast(tmp_path: Path) -> None:
     assert res.returncode != 0 and "flann_trees" in res.stderr
     assert time.perf_counter() - start < 60
     assert not (tmp_path / "cache").exists()  # nothing was computed
+    # a sweep whose first job does not compose: Hydra's words (its workers may warm up)
+    res = hydra_run(["-m", "detector=fastt,orb", "dataset.last=2"], tmp_path / "sweep")
+    assert res.returncode != 0 and "Could not find 'detector/fastt'" in res.stderr
 
 
 def test_missing_data_root_says_how_to_get_it(tmp_path: Path) -> None:

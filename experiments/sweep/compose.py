@@ -134,9 +134,10 @@ class Composer:
 
     # -- jobs from parts --------------------------------------------------------------------
     def _set_template(self, overrides: list[str]) -> None:
-        """Compose the template job; note its keys, overlapping positions and references."""
-        self.template = overrides
+        """Compose the template job; note its keys, overlapping positions and references. A
+        composition that fails sets no template (the next request fails with Hydra's error)."""
         self.base = self.hydra(overrides)
+        self.template = overrides
         self.keys = [o.key_or_group for o in self.parser.parse_overrides(overrides)]
         dotted = [key.replace("/", ".") for key in self.keys]
         self._overlaps = [

@@ -3,17 +3,17 @@
 Hydra 1.3 composes a command's primary config once to read ``hydra.mode``
 (``Hydra.get_mode``, run mode MULTIRUN, sweep overrides not checked) and throws it away, then
 composes it again with the same arguments to run a multirun (``Hydra.multirun``; upstream
-issue facebookresearch/hydra#3440). With this config tree that is ≈ 0.2 s of every command.
+issue https://github.com/hydra-ecosystem/hydra/issues/3440, open). With this config tree that
+is ≈ 0.2 s of every sweep command.
 
 :func:`compose_once` makes Hydra's config loader hand the first of two such compositions to
 the second request instead of composing again: a MULTIRUN composition made without checking
 the sweep overrides (``get_mode``'s request) is kept, and the next ``load_configuration`` with
 the same config name, overrides, mode and source takes it (once; the sweep overrides are then
-checked as Hydra would). Any other request (another mode, other
-overrides, a third request) composes as before and drops what was kept. The kept object is
-handed out only once and its first requester (``get_mode``) only reads ``hydra.mode`` from
-it, so no copy is needed. Nothing changes for a single run (its second composition is in RUN
-mode).
+checked as Hydra would). Any other request (another mode, other overrides, a third request)
+composes as before and drops what was kept. The kept object is handed out only once and its
+first requester (``get_mode``) only reads ``hydra.mode`` from it, so no copy is needed.
+Nothing changes for a single run (its second composition is in RUN mode).
 """
 
 from __future__ import annotations
