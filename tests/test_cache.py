@@ -1,4 +1,5 @@
-"""Stage cache: hits, corrupt entries, errors in place, cooperative computation across processes."""
+"""Stage cache: hits, corrupt entries, errors in place, cooperative computation across processes;
+the entry file format."""
 
 from __future__ import annotations
 
@@ -7,8 +8,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ttc.engine.cache import StageCache, Task, cache_key
+from ttc.engine.entry_file import MAGIC, EntryError, read_entry, write_entry
 
 
 def _task(key: str, calls: list[int], value: float = 1.0) -> Task:
@@ -43,7 +46,7 @@ def test_corrupt_entry_is_recomputed(tmp_path: Path) -> None:
     key = cache_key("stage", "corrupt")
     cache.get(_task(key, calls))
     path = cache.path("stage", key)
-    path.write_bytes(path.read_bytes()[:40])  # truncated zip
+    path.write_bytes(path.read_bytes()[:40])  # truncated
     again = StageCache(tmp_path, memory_mb=0).get(_task(key, calls))
     assert not again.cached and len(calls) == 2
     np.testing.assert_array_equal(again.arrays["a"], np.arange(5))
@@ -128,3 +131,44 @@ def test_two_processes_split_the_work(tmp_path: Path) -> None:
         assert proc.exitcode == 0
     computed = sorted(done[0] + done[1])
     assert computed == list(range(16))  # no entry computed twice
+
+
+def test_entry_file_round_trip_of_every_stored_kind(tmp_path: Path) -> None:
+    """Every dtype and shape the stages store (numbers, booleans, strings, 0-d, empty,
+    non-contiguous views) comes back equal and writable, with its key; a file cut anywhere,
+    another format or a foreign key is never read as good."""
+    arrays = {"f4": np.arange(12, dtype=np.float32).reshape(3, 4), "i8": np.array(5),
+              "u1": np.arange(256, dtype=np.uint8).reshape(8, 32), "b": np.array([True, False]),
+              "U": np.array(["lead", "other_lane"]), "empty": np.zeros((0, 3), np.int32),
+              "view": np.arange(12.0).reshape(3, 4).T, "f8": np.array(3.5)}  # fmt: skip
+    path = tmp_path / "entry.arr"
+    with open(path, "wb") as handle:
+        write_entry(handle, "k" * 32, arrays)
+    key, got = read_entry(path)
+    assert key == "k" * 32 and list(got) == list(arrays)
+    for name, value in arrays.items():
+        assert got[name].dtype == value.dtype and got[name].shape == value.shape, name
+        np.testing.assert_array_equal(got[name], value)
+        assert got[name].flags.writeable
+    whole = path.read_bytes()
+    for cut in range(0, len(whole)):  # every truncation
+        path.write_bytes(whole[:cut])
+        with pytest.raises(EntryError):
+            read_entry(path)
+    np.savez(tmp_path / "old.npz", a=np.arange(3))  # the earlier format
+    with pytest.raises(EntryError):
+        read_entry(tmp_path / "old.npz")
+    with pytest.raises(TypeError, match="'obj'"), open(path, "wb") as handle:
+        write_entry(handle, "k", {"obj": np.array([{}, 1], dtype=object)})
+
+
+def test_an_old_npz_entry_is_not_read(tmp_path: Path) -> None:
+    """An entry of the earlier ``.npz`` format beside the new one is ignored: computed again."""
+    cache = StageCache(tmp_path, memory_mb=0)
+    calls: list[int] = []
+    key = cache_key("stage", "old")
+    path = cache.path("stage", key)
+    path.parent.mkdir(parents=True)
+    np.savez(path.with_suffix(".npz"), a=np.arange(5), __cache_key__=np.array(key))
+    assert not cache.get(_task(key, calls)).cached and len(calls) == 1
+    assert path.read_bytes().startswith(MAGIC)

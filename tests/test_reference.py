@@ -250,6 +250,6 @@ def test_stored_reference_is_read_back_not_recomputed(kitti_dir, kitti_reference
     fresh = StageCache(tmp_path, memory_mb=0)
     again = sequence_reference(kitti_dir, fresh)
     assert fresh.corrupt_entries == 0
-    assert fresh.load("reference", next(tmp_path.glob("reference/*/*.npz")).stem) is not None
+    assert fresh.load("reference", next(tmp_path.glob("reference/*/*.arr")).stem) is not None
     pd.testing.assert_frame_equal(again, first)
     assert again["regime"].tolist() == kitti_reference["regime"].tolist()

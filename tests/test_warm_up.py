@@ -26,7 +26,7 @@ def master_of():
 
 
 def entries(cache: Path) -> dict[str, int]:
-    return {d.name: len(list(d.rglob("*.npz"))) for d in cache.iterdir() if d.is_dir()}
+    return {d.name: len(list(d.rglob("*.arr"))) for d in cache.iterdir() if d.is_dir()}
 
 
 def test_a_cold_sweep_gets_its_shared_stages_and_reference(master_of, data_dir, tmp_path) -> None:

@@ -1,8 +1,10 @@
 """On-disk cache of the expensive pipeline stages, shared by jobs, workers and sweeps.
 
-An entry is a dict of numpy arrays stored as one uncompressed ``.npz`` file, named by the hash
-of its key (the stage name plus the identity of the input files and the stage's resolved
-parameters). Safety under concurrent workers:
+An entry is a dict of numpy arrays stored as one ``.arr`` file (:mod:`ttc.engine.entry_file`:
+read in one call, ≈ 0.04 ms, where an ``.npz`` took 0.4-0.55 ms), named by the hash of its key
+(the stage name plus the identity of the input files and the stage's resolved parameters);
+the file holds the key too. Entries of the earlier ``.npz`` format are not read (computed
+again once). Safety under concurrent workers:
 
 * writes go to a temporary file in the same folder and are renamed into place, so a reader
   sees a whole entry or none;
@@ -25,7 +27,6 @@ import hashlib
 import json
 import time
 import warnings
-import zipfile
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -35,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ttc.atomic import atomic_write
+from ttc.engine.entry_file import EntryError, read_entry, write_entry
 
 try:
     import fcntl
@@ -42,7 +44,8 @@ except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process lo
     fcntl = None
 
 Arrays = dict[str, np.ndarray]
-_KEY_FIELD = "__cache_key__"
+#: Suffix of an entry's file (:mod:`ttc.engine.entry_file`).
+SUFFIX = ".arr"
 #: Default memory budget of a process's recently used entries (MB; 0 disables).
 MEMORY_MB = 256
 
@@ -132,7 +135,7 @@ class StageCache:
     # -- paths -------------------------------------------------------------------------------
     def path(self, stage: str, key: str) -> Path:
         assert self.directory is not None
-        return self.directory / stage / key[:2] / f"{key}.npz"
+        return self.directory / stage / key[:2] / f"{key}{SUFFIX}"
 
     # -- read / write ------------------------------------------------------------------------
     def load(self, stage: str, key: str) -> Arrays | None:
@@ -143,14 +146,13 @@ class StageCache:
             return kept
         path = self.path(stage, key)
         try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {name: data[name] for name in data.files}
+            stored, arrays = read_entry(path)
         except FileNotFoundError:
             return None
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):
+        except (OSError, EntryError):
             self._discard(path)
             return None
-        if str(arrays.pop(_KEY_FIELD, "")) != key:
+        if stored != key:
             self._discard(path)
             return None
         return self._remember(stage, key, arrays)
@@ -180,7 +182,7 @@ class StageCache:
 
         def write(tmp: Path) -> None:
             with open(tmp, "wb") as handle:
-                np.savez(handle, **arrays, **{_KEY_FIELD: np.array(key)})
+                write_entry(handle, key, arrays)
 
         try:
             atomic_write(path, write)
