@@ -119,9 +119,9 @@ class Composer:
         """What another process's composer starts from (``Composer(loader, master,
         *shared)``): the compositions no part stands for (the template's among them), the
         template and the parts found so far, each without its variant's composition and its
-        nodes copies of their own (:func:`experiments.sweep.parts.detached`). A worker swaps parts' nodes in and reads
-        nothing else of a variant: unpickling the variants' and an earlier plan's 14
-        compositions cost each worker ≈ 0.15 s before its first job."""
+        nodes copies of their own (:func:`experiments.sweep.parts.detached`). A worker swaps
+        parts' nodes in and reads nothing else of a variant: unpickling the variants' and an
+        earlier plan's 14 compositions cost each worker ≈ 0.15 s before its first job."""
         assert self.template is not None
         stand_in = {
             tuple([*self.template[:position], item, *self.template[position + 1 :]])
