@@ -215,9 +215,9 @@ class SweepSweeper(Sweeper):
             kept_key, reuse_key = compositions_key(key, self.config), earlier_key(self.config)
             composer = self._composer(load_earlier(sweep_dir, reuse_key))
             composer.known.update(load_compositions(sweep_dir, kept_key))
+            made = composer.full_compositions
             if warm and planning.first_record_missing(sweep_dir, composer, batch):
                 self.launcher.warm_up()  # once: a second call does nothing
-            made = composer.full_compositions
             self.validate_batch_is_legal(batch)
             limit = max(1, self.max_settings_per_job)
             plan = planning.make_plan(batch, composer, self.config, sweep_dir, limit)
