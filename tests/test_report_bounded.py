@@ -22,7 +22,6 @@ from experiments.report.judged_rows import (
     TIME_COLUMNS,
     UNREAD_COLUMNS,
     cut,
-    is_in,
     judged_mask,
     read_columns,
     row_columns,
@@ -101,10 +100,12 @@ def test_judged_mask_keeps_the_rows_lead_rows_picks() -> None:
     assert picked.equals(ev.lead_rows(keys))
 
 
-def test_run_ids_matched_as_pandas_matches_them() -> None:
-    values = pd.Series(["a", "b", None, "c", "a"], dtype="str")
-    assert is_in(values, {"a", "c", "zz"}).tolist() == values.isin({"a", "c", "zz"}).tolist()
-    assert is_in(values, set()).tolist() == [False] * 5
+@pytest.mark.parametrize("dtype", ["str", "object", "category", "string[pyarrow]"])
+def test_run_ids_matched_as_pandas_matches_them(dtype: str) -> None:
+    values = pd.Series(["a", "b", None, "c", "a"], dtype=dtype)
+    assert ev.is_in(values, {"a", "c", "zz"}).tolist() == values.isin({"a", "c", "zz"}).tolist()
+    assert ev.is_in(values, ["c", "zz"]).tolist() == values.isin(["c", "zz"]).tolist()
+    assert ev.is_in(values, set()).tolist() == [False] * 5
 
 
 def test_the_columns_left_unread_are_row_columns_no_step_needs() -> None:

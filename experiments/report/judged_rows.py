@@ -9,7 +9,6 @@ pandas frame; docs/benchmarks.md)."""
 from __future__ import annotations
 
 from collections.abc import Iterable
-from collections.abc import Set as AbstractSet
 
 import numpy as np
 import pandas as pd
@@ -21,6 +20,7 @@ from experiments.recordings import run_ids_by_recording, setting_of
 from experiments.report.heap import release_freed_memory
 from experiments.tools.schema import FRAME_COLUMNS
 from ttc import evaluation as ev
+from ttc.evaluation.errors import is_in
 from ttc.evaluation.stage_times import group_codes
 from ttc.io.frames import TRUTH_COLUMNS
 from ttc.settings import AXES, CACHED_STAGES, only_sensor_axes
@@ -119,17 +119,7 @@ def box_runs(runs: pd.DataFrame) -> set[str]:
     if runs.empty:
         return set()
     by_recording = run_ids_by_recording(runs).values()
-    return {i for ids in by_recording for i in camera_runs(runs[runs["run_id"].isin(ids)]).index}
-
-
-def is_in(values: pd.Series, ids: AbstractSet[str]) -> np.ndarray:
-    """(n,) bool: each of ``values`` (strings) is one of ``ids``; each distinct value looked
-    up once (a fragment of ``grand`` repeats a few hundred run ids over 26,000 rows; pandas'
-    ``isin`` on an Arrow string column converted every id to a scalar each call: 0.3 s a
-    fragment for ``grand``'s 33,600 run ids, 88 of its report's 300 s)."""
-    codes, distinct = pd.factorize(values, use_na_sentinel=False)
-    found = np.fromiter((v in ids for v in distinct), dtype=bool, count=len(distinct))
-    return found[codes]
+    return {i for ids in by_recording for i in camera_runs(runs[is_in(runs["run_id"], ids)]).index}
 
 
 def read_rows(

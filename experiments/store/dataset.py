@@ -11,6 +11,7 @@ from typing import Any
 
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
@@ -90,8 +91,11 @@ def fragment_table(frag: Fragment, columns: list[str] | None = None) -> pa.Table
             if int(counts.get(run_id, 0)) != n:
                 raise StoreError(frag.path, f"{counts.get(run_id, 0)} rows of {run_id}, "
                                  f"its record says {n}")  # fmt: skip
-        wanted = ids.isin(list(frag.n_rows)).to_numpy()
-        table = table if wanted.all() else table.filter(pa.array(wanted))
+        # in Arrow: pandas' isin on the ids took 10-25 ms a fragment
+        wanted = pc.is_in(
+            table.column("run_id"), value_set=pa.array(list(frag.n_rows), pa.string())
+        )
+        table = table if pc.all(wanted).as_py() else table.filter(wanted)
     return (
         table if columns is None else table.select([c for c in columns if c in table.schema.names])
     )
