@@ -3,10 +3,13 @@ are autocorrelated, against the independent bootstrap it replaced."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
 from ttc import evaluation as ev
+from ttc.evaluation.bootstrap import CHUNK_RUNS, replicate_medians
 
 
 def ar1(rng: np.random.Generator, shape: tuple[int, int], rho: float) -> np.ndarray:
@@ -95,3 +98,24 @@ def test_point_ranks_sit_inside_their_intervals(rho):
     lo, hi = ev.rank_interval(ev.rank_replicates(invalid, mid, np.ones(mid.shape), draws))
     point = ev.rank_replicates(invalid, mid, np.ones(mid.shape), np.arange(77)[None])[0]
     assert ((lo <= point) & (point <= hi)).all()
+
+
+def test_replicate_medians_are_numpy_s_nanmedian_bit_for_bit() -> None:
+    """Runs with NaN, ties, an all-NaN run and a replicate that draws only NaN frames: each
+    replicate's median is ``np.nanmedian`` of the values it draws (NaN where none), in more
+    runs than one chunk."""
+    rng = np.random.default_rng(3)
+    runs, frames, n_boot = CHUNK_RUNS + 7, 9, 40
+    values = np.round(rng.gamma(2.0, 3.0, size=(runs, frames)), 1)  # rounded: ties
+    values[rng.random(values.shape) < 0.3] = np.nan
+    values[0] = np.nan
+    values[1, 2:] = np.nan  # only frames 0 and 1 hold values
+    draws = rng.integers(0, frames, size=(n_boot, frames))
+    draws[0] = 5  # the first replicate draws frame 5 only: NaN for run 1
+    got = replicate_medians(values, draws)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices
+        expected = np.nanmedian(values[:, draws], axis=-1).T
+    assert got.shape == (n_boot, runs)
+    assert np.isnan(got[0, 1]) and np.isnan(got[:, 0]).all()
+    assert np.array_equal(got, expected, equal_nan=True)

@@ -103,22 +103,34 @@ def block_draws(
     return draws.reshape(n_boot, -1)[:, :n]
 
 
-def _nanmedian_last(values: np.ndarray) -> np.ndarray:
-    """Median over the last axis ignoring NaN (NaN when all are NaN), via one sort."""
-    ordered = np.sort(values, axis=-1)  # NaN last
-    n = np.count_nonzero(~np.isnan(values), axis=-1)
-    lo = np.take_along_axis(ordered, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
-    hi = np.take_along_axis(ordered, (n // 2)[..., None], axis=-1)[..., 0]
-    return np.where(n > 0, (lo + hi) / 2, np.nan)
-
-
 def replicate_medians(values: np.ndarray, draws: np.ndarray) -> np.ndarray:
-    """Median of ``values`` (runs × frames, NaN ignored) over each replicate's frames
-    (``draws``, replicates × n): replicates × runs, computed in chunks of runs."""
-    out = np.empty((draws.shape[0], values.shape[0]))
+    """Median of ``values`` (runs × frames, NaN ignored; NaN where a replicate draws no
+    value) over each replicate's frames (``draws``, replicates × n frame indices):
+    replicates × runs, computed in chunks of :data:`CHUNK_RUNS` runs.
+
+    Each run's values are sorted once; a replicate draws each sorted value as often as it
+    draws its frame, so the cumulated counts along the sorted values locate the two middle
+    positions: the values ``np.nanmedian`` of the drawn values gives, bit for bit, without
+    sorting each replicate's draws (``grand`` 0–18's FP.6 ranking, 5,600 runs × 500
+    replicates × 18 frames: 0.69 → 0.26 s)."""
+    n_boot, n_frames = draws.shape[0], values.shape[1]
+    counts = np.zeros((n_boot, n_frames), dtype=np.int16 if draws.shape[1] < 2**15 else np.int64)
+    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1)  # replicates × frames drawn
+    order = np.argsort(values, axis=1)  # NaN last
+    ordered = np.take_along_axis(values, order, axis=1)
+    out = np.empty((n_boot, values.shape[0]))
     for start in range(0, values.shape[0], CHUNK_RUNS):
-        part = values[start : start + CHUNK_RUNS]
-        out[:, start : start + CHUNK_RUNS] = _nanmedian_last(part[:, draws]).T
+        part = slice(start, start + CHUNK_RUNS)
+        drawn = counts[:, order[part]] * ~np.isnan(ordered[part])  # replicates × runs × frames
+        cum = np.cumsum(drawn, axis=-1, dtype=counts.dtype)
+        n = cum[..., -1]  # values drawn
+        lo, hi = (
+            np.minimum(np.count_nonzero(cum <= k[..., None], axis=-1), n_frames - 1)
+            for k in ((n - 1) // 2, n // 2)
+        )
+        runs = np.arange(ordered[part].shape[0])[None, :]
+        middle = (ordered[part][runs, lo] + ordered[part][runs, hi]) / 2
+        out[:, part] = np.where(n > 0, middle, np.nan)
     return out
 
 
