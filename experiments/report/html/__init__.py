@@ -96,7 +96,10 @@ def html_report(
         write_text(pages.fp6_page(provenance, t, fp6_pictures, figures, paged),
                    folder / "fp6.html")  # fmt: skip
         needed = ["dataset", "setting", "reason_text", *pages.FRAME_COLUMNS]
-        by_setting = dict(list(t[needed].groupby(["dataset", "setting"], sort=False)))
+        # only the rows of the settings that get a page (grand: 300 of 5,600 settings)
+        pairs = pd.MultiIndex.from_arrays([t["dataset"].astype(str), t["setting"].astype(str)])
+        shown = t.loc[pairs.isin(list(paged)), needed]
+        by_setting = dict(list(shown.groupby(["dataset", "setting"], sort=False)))
         for _, row in ranking.iterrows():
             rows = by_setting.get((row["dataset"], row["setting"]))
             if rows is None or (row["dataset"], row["setting"]) not in paged:
