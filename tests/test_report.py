@@ -23,6 +23,7 @@ from tests.conftest import PROJECT_ROOT
 from ttc import evaluation as ev
 from ttc.draw import HIGHLIGHT_COLOUR
 from ttc.draw.lead_pair import GAP, crop_scale, lead_region
+from ttc.io.frames import frame_files
 
 COMMITTED_FP5 = "results/kitti_0_18/fp5_lidar_ttc.csv"
 #: Columns of the FP.5 CSV that a fresh sweep must reproduce exactly.
@@ -248,6 +249,26 @@ def test_fp6_pictures_are_readable_and_show_both_lead_boxes(grid_report: Path, c
 
 
 @pytest.mark.slow
+def test_pair_details_share_each_frame_read_once(camera_grid) -> None:
+    """Two settings' details of one frame pair show the same image arrays, equal to the
+    frames' files and read-only (drawn on copies); a detail of the next pair shares its
+    previous frame; forgetting the details forgets the images."""
+    root, sweep = camera_grid
+    data, ctx = load_sweeps([sweep]), make_context(None, root / "cache")
+    first, second = data.runs.loc[data.runs["status"] == "ok", "run_id"].iloc[:2]
+    a, b = ctx.detail(data.runs, first, 0, 1), ctx.detail(data.runs, second, 0, 1)
+    c = ctx.detail(data.runs, first, 1, 2)
+    assert a.images[0] is b.images[0] and a.images[1] is b.images[1] is c.images[1]
+    sequence = ctx.setup(data.runs, first)[1].sequence_dir
+    for i in (0, 1, 2):
+        image = c.images[i] if i else a.images[0]
+        assert not image.flags.writeable
+        assert np.array_equal(image, cv2.imread(str(frame_files(sequence, i).image)))
+    assert len(ctx.images) == 3
+    ctx.drop_details()
+    assert not ctx.images and not ctx.details
+
+
 def test_frame_77_is_flagged_as_a_truncated_scan(tmp_path_factory) -> None:
     root = shared_root(tmp_path_factory)
     args = ["-m", "lidar_ttc=median,closest", "dataset=kitti_0_77", "sweep_name=fp5_0_77"]

@@ -8,7 +8,9 @@ import json
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pandas as pd
 import yaml
 from omegaconf import DictConfig, OmegaConf
@@ -30,6 +32,7 @@ from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.model_files import uses_bundled_files
+from ttc.io.frames import read_image
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
 
@@ -130,6 +133,8 @@ def setting_of_run(runs: pd.DataFrame, run_id: str, root: Path) -> tuple[Setting
 
 #: Pair details a :class:`Context` keeps (``grand`` 0–18's report asks for 71, each with its two images).
 DETAILS_KEPT = 16
+#: Images a :class:`Context` keeps (those of the details kept, at most: shared among them).
+IMAGES_KEPT = 2 * DETAILS_KEPT
 
 
 @dataclass
@@ -143,6 +148,7 @@ class Context:
     calls: int = 0
     models_found: bool = False
     setups: dict[str, tuple[Settings, FrameRange]] = field(default_factory=dict)
+    images: dict[Any, np.ndarray] = field(default_factory=dict)
 
     def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
         """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised); the first
@@ -157,16 +163,32 @@ class Context:
         if not self.models_found and uses_bundled_files(settings.objects):
             ensure_model_files()
             self.models_found = True
-        self.details[key] = pair_detail(settings, frames, prev, curr, self.cache)
+        self.details[key] = pair_detail(settings, frames, prev, curr, self.cache, self.image)
         self.calls += 1
         while len(self.details) > DETAILS_KEPT:  # each holds two images: a few MB
             del self.details[next(iter(self.details))]
         return self.details[key]
 
+    def image(self, ref: Any) -> np.ndarray:
+        """A frame's image (:func:`ttc.io.frames.read_image` of its file or bag message),
+        read once for every pair detail that shows it (``grand`` 0–18's report: 162 images of
+        19 frames, 0.9 s) and read-only; the :data:`IMAGES_KEPT` most recently used kept."""
+        if ref in self.images:
+            self.images[ref] = self.images.pop(ref)  # the most recently used last
+            return self.images[ref]
+        image = read_image(ref)
+        image.flags.writeable = False  # shared by the details: drawn on copies only
+        self.images[ref] = image
+        while len(self.images) > IMAGES_KEPT:
+            del self.images[next(iter(self.images))]
+        return image
+
     def drop_details(self) -> None:
-        """Forget the pair details kept (FP.5 and FP.6 ask for them; a report's later sections
-        do not: ``grand`` 0–18's 16 kept held 43 MB through the "every object" report)."""
+        """Forget the pair details and images kept (FP.5 and FP.6 ask for them; a report's
+        later sections do not: ``grand`` 0–18's 16 kept held 43 MB through the "every object"
+        report)."""
         self.details.clear()
+        self.images.clear()
 
     def setup(self, runs: pd.DataFrame, run_id: str) -> tuple[Settings, FrameRange]:
         """:func:`setting_of_run` of a run of ``runs`` (memoised by run id: unique across a

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -198,10 +198,18 @@ def run_settings(
 
 
 def pair_detail(
-    settings: Settings, frames: FrameRange, prev: int, curr: int, cache: StageCache | None = None
+    settings: Settings,
+    frames: FrameRange,
+    prev: int,
+    curr: int,
+    cache: StageCache | None = None,
+    read: Callable[[Any], np.ndarray] = read_image,
 ) -> PairDetail:
     """Run one frame pair ``prev`` → ``curr`` and keep every intermediate array (for
-    pictures and explanations); raises the pair's :class:`ttc.io.frames.FrameDataError`."""
+    pictures and explanations); raises the pair's :class:`ttc.io.frames.FrameDataError`.
+    ``read``: the pair's two images (H × W × 3 BGR) from their file or bag message
+    (:func:`ttc.io.frames.read_image`; a caller asking for many pairs can share the frames
+    read)."""
     check_setting(settings)
     cache = cache if cache is not None else StageCache(None)
     calib = load_calibration(frames.sequence_dir, frames.projection)
@@ -218,7 +226,7 @@ def pair_detail(
     return PairDetail(
         prev=prev,
         curr=curr,
-        images={i: read_image(frame_files(frames.sequence_dir, i).image) for i in (prev, curr)},
+        images={i: read(frame_files(frames.sequence_dir, i).image) for i in (prev, curr)},
         objects=shared.obj,
         keypoints={prev: shared.desc_prev["keypoints"], curr: shared.kp_curr},
         matches=detail["matches"],
