@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 import pytest
 
 from experiments.identity import with_neutral_axes
@@ -21,12 +22,12 @@ from experiments.report.judged_rows import (
     KEY_COLUMNS,
     TIME_COLUMNS,
     UNREAD_COLUMNS,
-    cut,
+    as_frame,
     judged_mask,
+    picked_rows,
     read_columns,
     row_columns,
     stacked,
-    stacked_columns,
 )
 from tests.conftest import PROJECT_ROOT, data_root
 from tests.test_report import env_for, make_report, make_sweep, shared_root
@@ -116,35 +117,58 @@ def test_the_columns_left_unread_are_row_columns_no_step_needs() -> None:
     assert set(COUNTED_ONLY) <= set(read_columns())
 
 
-def _fragment(rng: np.random.Generator, detectors: list[str], n: int) -> pd.DataFrame:
-    """Rows as a fragment reads them: an axis and run ids (strings, some missing), a float
-    with NaN, an integer and a bool column."""
-    detector = rng.choice(np.array([*detectors, None], dtype=object), n)
-    return pd.DataFrame({
-        "run_id": pd.array(rng.choice(["r1", "r2", "r3"], n), dtype="str"),
-        "detector": pd.array(detector, dtype="str"),
+def _fragment(rng: np.random.Generator, detectors: list[str], n: int, holes: bool) -> pa.Table:
+    """Rows as a fragment reads them: an axis and run ids (large strings, some missing), a
+    float with NaN, and an integer and a flag column with a null in the first row when
+    ``holes``."""
+    detector = rng.choice(np.array([*detectors, None], dtype=object), n).tolist()
+    frame = rng.integers(0, 18, n).tolist()
+    lead = (rng.random(n) < 0.5).tolist()
+    if holes:
+        frame[0] = lead[0] = None
+    return pa.table({
+        "run_id": pa.array(rng.choice(["r1", "r2", "r3"], n).tolist(), pa.large_string()),
+        "detector": pa.array(detector, pa.large_string()),
         "ttc_camera": np.where(rng.random(n) < 0.2, np.nan, rng.normal(10, 2, n)),
-        "frame": rng.integers(0, 18, n),
-        "is_lead": rng.random(n) < 0.5,
+        "frame": pa.array(frame, pa.int64()),
+        "is_lead": pa.array(lead, pa.bool_()),
     })  # fmt: skip
 
 
-def test_stacked_columns_hold_the_rows_pandas_concat_gives() -> None:
-    rng = np.random.default_rng(3)
-    frags = [_fragment(rng, d, 40) for d in (["orb", "akaze"], ["sift"], ["orb", "fast"])]
-    masks = [rng.random(40) < 0.6 for _ in frags]
-    columns = ["run_id", "detector", "ttc_camera", "frame", "is_lead"]
-    parts = [cut(f, m, columns) for f, m in zip(frags, masks, strict=True)]
-    got = stacked_columns(parts)
-    want = pd.concat([f.loc[m, columns] for f, m in zip(frags, masks, strict=True)],
+def _cut_and_stacked(tables: list[pa.Table], masks: list[np.ndarray]) -> pd.DataFrame:
+    """What pandas gives: each fragment as a frame, its rows cut, the cuts stacked, the axis
+    a category of sorted categories."""
+    want = pd.concat([t.to_pandas()[m] for t, m in zip(tables, masks, strict=True)],
                      ignore_index=True)  # fmt: skip
-    assert all(not p for p in parts)  # each column freed from the parts once stacked
-    # the axis as a category, its categories sorted: sorting and grouping as the strings do
+    values = want["detector"]
+    return want.assign(detector=pd.Categorical(values, categories=sorted(values.dropna().unique())))
+
+
+@pytest.mark.parametrize("holes", [(False, False, False), (False, True, False)])
+def test_rows_taken_in_arrow_are_the_frame_pandas_cuts_and_stacks(holes) -> None:
+    """A fragment's null in the integer and flag columns makes them float and object in
+    every fragment's frame, so in the stacked rows too, whether the rows kept hold it or not
+    (its first row is never kept here)."""
+    rng = np.random.default_rng(3)
+    tables = [_fragment(rng, d, 40, h)
+              for d, h in zip((["orb", "akaze"], ["sift"], ["orb", "fast"]), holes, strict=True)]  # fmt: skip
+    masks = [(rng.random(40) < 0.6) & (np.arange(40) > 0) for _ in tables]
+    nulls = {n for t in tables for n, c in zip(t.column_names, t.columns, strict=True)
+             if c.null_count}  # fmt: skip
+    parts = [picked_rows(t, t.column_names, m) for t, m in zip(tables, masks, strict=True)]
+    got = as_frame(parts, nulls)
+    want = _cut_and_stacked(tables, masks)
+    assert not parts  # emptied
     assert list(got["detector"].cat.categories) == ["akaze", "fast", "orb", "sift"]
-    assert got["detector"].isna().tolist() == want["detector"].isna().tolist()
-    assert got.astype({"detector": want["detector"].dtype}).equals(want)
+    assert got["detector"].cat.categories.dtype == want["detector"].cat.categories.dtype
+    assert dict(got.dtypes) == dict(want.dtypes)
+    assert got["frame"].dtype == (np.float64 if any(holes) else np.int64)
+    pd.testing.assert_frame_equal(got, want, check_exact=True)
     assert got.groupby("detector").size().equals(want.groupby("detector").size())
-    assert got["run_id"].dtype == want["run_id"].dtype  # run ids stay strings
+
+
+def test_no_parts_are_an_empty_frame() -> None:
+    assert as_frame([], set()).empty
 
 
 def test_a_missing_axis_of_a_category_is_filled_with_its_off_value() -> None:
@@ -168,13 +192,12 @@ def test_sweeps_stacked_keep_their_axes_as_one_category() -> None:
 
 def test_categories_sorted_when_parts_list_them_in_another_order() -> None:
     """Fragments code an axis in the order its values first come; the same values in another
-    order still stack into sorted categories (a category's dtype equal as a set is not
-    recoded by ``astype``)."""
-    a = pd.DataFrame({"detector": pd.array(["orb", "sift", "akaze"], dtype="str")})
-    b = pd.DataFrame({"detector": pd.array(["akaze", "orb"], dtype="str")})
-    c = pd.DataFrame({"detector": pd.array(["sift", "akaze", "orb"], dtype="str")})
-    parts = [cut(f, np.ones(len(f), dtype=bool), ["detector"]) for f in (a, b, c)]
-    got = stacked_columns(parts)["detector"]
+    order still give sorted categories (a category's dtype equal as a set is not recoded by
+    ``astype``), for one sweep's fragments and for sweeps stacked."""
+    values = (["orb", "sift", "akaze"], ["akaze", "orb"], ["sift", "akaze", "orb"])
+    tables = [pa.table({"detector": pa.array(v, pa.large_string())}) for v in values]
+    got = as_frame([picked_rows(t, ["detector"], np.ones(t.num_rows, dtype=bool)) for t in tables],
+                   set())["detector"]  # fmt: skip
     assert list(got.cat.categories) == ["akaze", "orb", "sift"]
     assert got.tolist() == ["orb", "sift", "akaze", "akaze", "orb", "sift", "akaze", "orb"]
     frames = [pd.DataFrame({"detector": pd.Categorical(v, categories=v)}) for v in

@@ -9,11 +9,12 @@ pandas frame; docs/benchmarks.md)."""
 from __future__ import annotations
 
 from collections.abc import Iterable
+from collections.abc import Set as AbstractSet
 
 import numpy as np
 import pandas as pd
-from pandas.api.extensions import ExtensionArray
-from pandas.api.types import is_string_dtype
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from experiments.identity import with_neutral_axes
 from experiments.recordings import run_ids_by_recording, setting_of
@@ -51,8 +52,8 @@ UNREAD_COLUMNS: tuple[str, ...] = (
     "box_class", "box_confidence", "box_x", "box_y", "box_shared_matches",
     "lidar_outliers_prev", "lidar_outliers_curr",
 )  # fmt: skip
-#: Fragments read (:func:`read_rows`), and columns stacked (:func:`stacked_columns`), between
-#: two :func:`~experiments.report.heap.release_freed_memory` calls (``grand`` 0–18: 175
+#: Fragments read (:func:`read_rows`) between two
+#: :func:`~experiments.report.heap.release_freed_memory` calls (``grand`` 0–18: 175
 #: fragments; its load step peaked 0.28 GB higher without them, and a call after every
 #: fragment costs ≈ 25 ms of system time each).
 TRIM_EVERY = 16
@@ -123,61 +124,85 @@ def box_runs(runs: pd.DataFrame) -> set[str]:
 
 
 def read_rows(
-    parts: Iterable[pd.DataFrame], runs: pd.DataFrame
+    tables: Iterable[pa.Table], runs: pd.DataFrame
 ) -> tuple[pd.DataFrame, pd.DataFrame, ev.StageCounts]:
     """(judged rows, box rows, stage time counts) of the runs ``runs`` of a sweep whose rows
-    come as ``parts`` (:func:`experiments.store.scan_sweep`: a fragment at a time, on
-    :func:`read_columns`; every row of a run is in one part): judged rows
-    (:func:`judged_mask`) on those columns, the matched
-    box pairs of :func:`box_runs` on :data:`BOX_COLUMNS`, and the computed stage times of
-    every row counted (:func:`ttc.evaluation.stage_time_counts`: a few rows per stage, frame
-    and value). Memory: what is kept, and one part."""
+    come as ``tables`` (:func:`experiments.store.scan_sweep`: a fragment at a time, on
+    :func:`read_columns`, one schema; every row of a run is in one fragment): judged rows
+    (:func:`judged_mask`) on those columns, the matched box pairs of :func:`box_runs` on
+    :data:`BOX_COLUMNS`, and the computed stage times of every row counted
+    (:func:`ttc.evaluation.stage_time_counts`: a few rows per stage, frame and value).
+
+    A fragment's rows are picked in Arrow (one take of every column) and only the columns
+    that pick them and the counted ones become pandas; the picked rows become one frame at
+    the end (:func:`as_frame`): the frame pandas gives of the fragments' frames cut and
+    stacked, made of 2 Arrow calls a fragment instead of one pandas call per column and
+    fragment (``grand`` 0–18: 175 fragments × 66 columns). Memory: what is kept, and one
+    fragment."""
     ids, boxed_ids = set(runs["run_id"]), box_runs(runs)
-    lead_parts, box_parts, counts = [], [], []
-    for part in parts:
-        mine = is_in(part["run_id"], ids)
-        judged = judged_mask(part[list(KEY_COLUMNS)]) & mine
+    lead_parts: list[pa.Table] = []
+    box_parts: list[pa.Table] = []
+    counts: list[ev.StageCounts] = []
+    with_nulls: set[str] = set()
+    for table in tables:
+        names = table.column_names
+        with_nulls.update(n for n, c in zip(names, table.columns, strict=True) if c.null_count)
+        picked = [c for c in dict.fromkeys([*KEY_COLUMNS, *TIME_COLUMNS]) if c in names]
+        keys = table.select(picked).to_pandas()
+        mine = is_in(keys["run_id"], ids)
+        judged = judged_mask(keys[list(KEY_COLUMNS)]) & mine
         boxed = (
-            is_in(part["run_id"], boxed_ids)
-            & (part["prev_box"] >= 0).to_numpy()
-            & (part["curr_box"] >= 0).to_numpy()
+            is_in(keys["run_id"], boxed_ids)
+            & (keys["prev_box"] >= 0).to_numpy()
+            & (keys["curr_box"] >= 0).to_numpy()
             & mine
         )
-        order = [c for c in read_columns() if c in part]
-        lead_parts.append(cut(part, judged, order))
-        box_parts.append(cut(part, boxed, [c for c in BOX_COLUMNS if c in part]))
-        counts.append(ev.stage_time_counts(part.loc[mine, [c for c in TIME_COLUMNS if c in part]]))
-        del part
+        lead_parts.append(picked_rows(table, [c for c in read_columns() if c in names], judged))
+        box_parts.append(picked_rows(table, [c for c in BOX_COLUMNS if c in names], boxed))
+        counts.append(ev.stage_time_counts(keys.loc[mine, [c for c in TIME_COLUMNS if c in keys]]))
+        del table, keys
         if len(lead_parts) % TRIM_EVERY == 0:  # the fragments' freed pages back as they go
             release_freed_memory()
-    return stacked_columns(lead_parts), stacked_columns(box_parts), ev.join_counts(counts)
+    lead, boxes = as_frame(lead_parts, with_nulls), as_frame(box_parts, with_nulls)
+    return lead, boxes, ev.join_counts(counts)
 
 
-#: A table as its columns by name, each column its own array, no index (:func:`cut`).
-Columns = dict[str, ExtensionArray]
+def picked_rows(table: pa.Table, columns: list[str], rows: np.ndarray) -> pa.Table:
+    """The rows ``rows`` ((n,) bool) of ``table`` on ``columns``, in a table of their own
+    (no buffer of the fragment kept), the axes (:data:`ttc.settings.AXES`, strings)
+    dictionary-encoded: a few distinct values over thousands of rows."""
+    taken = table.select(columns).take(pa.array(np.flatnonzero(rows)))
+    for i, field in enumerate(taken.schema):
+        text = pa.types.is_string(field.type) or pa.types.is_large_string(field.type)
+        if field.name in AXES and text:
+            taken = taken.set_column(i, field.name, pc.dictionary_encode(taken.column(i)))
+    return taken
 
 
-def as_category(values: ExtensionArray) -> pd.Categorical:
-    """An axis's values (strings: a few distinct values over thousands of rows) as a category:
-    the same values in a fraction of the memory (``grand`` 0–18's judged rows 317 → 225 MiB);
-    :func:`stacked_columns` sorts the categories of the stacked column, so that it sorts and
-    groups as the strings."""
-    codes, distinct = pd.factorize(values)
-    return pd.Categorical.from_codes(codes, categories=distinct, validate=False)
-
-
-def cut(part: pd.DataFrame, rows: np.ndarray, columns: list[str]) -> Columns:
-    """The rows ``rows`` ((n,) bool) of ``part`` on ``columns``, each column copied into its
-    own array without an index (:func:`stacked_columns` frees them one by one), the axes
-    (:data:`ttc.settings.AXES`) as categories (:func:`as_category`; the other string columns,
-    run ids and reason codes, stay strings: their readers map them to other values)."""
-    at = np.flatnonzero(rows)  # positions: a take is twice as fast as a mask per column
-    return {
-        column: as_category(part[column].array.take(at))
-        if column in AXES and is_string_dtype(part[column].dtype)
-        else part[column].array.take(at)
-        for column in columns
-    }
+def as_frame(parts: list[pa.Table], with_nulls: AbstractSet[str]) -> pd.DataFrame:
+    """``parts`` (Arrow tables of one schema, emptied) one under the other as pandas, with the
+    types pandas gives when each fragment becomes a frame before its rows are cut and the
+    cuts are stacked: a column of integers or flags with a null in some fragment
+    (``with_nulls``) is float or object in every one, whether the rows kept hold the null or
+    not; the axes are categories with sorted categories, so that they sort and group as the
+    strings (``grand`` 0–18's judged rows 317 → 225 MiB as categories). An empty list gives an
+    empty frame."""
+    if not parts:
+        return pd.DataFrame()
+    table = pa.concat_tables(parts)
+    parts.clear()
+    frame = table.to_pandas(self_destruct=True)
+    del table
+    for name in frame.columns:
+        column = frame[name]
+        if isinstance(column.dtype, pd.CategoricalDtype):
+            sorted_categories = pd.Index(sorted(column.cat.categories))
+            frame[name] = column.cat.set_categories(sorted_categories)
+        elif name in with_nulls and column.dtype.kind in "iu":
+            frame[name] = column.astype(np.float64)
+        elif name in with_nulls and column.dtype.kind == "b":
+            frame[name] = column.astype(object)
+    return frame
 
 
 def category_union(dtypes: list) -> pd.Index | None:
@@ -187,24 +212,6 @@ def category_union(dtypes: list) -> pd.Index | None:
     if not dtypes or not all(isinstance(d, pd.CategoricalDtype) for d in dtypes):
         return None
     return pd.Index(sorted(set().union(*(d.categories for d in dtypes))))
-
-
-def stacked_columns(parts: list[Columns]) -> pd.DataFrame:
-    """``parts`` (each with the same columns) one under the other with a new index, built a
-    column at a time, each column of the parts freed once stacked: memory of the parts and
-    one column, not twice the parts (``grand`` 0–18's load step 0.2 GB lower). ``parts`` is
-    emptied. A category in every part stays one (:func:`category_union`)."""
-    out: dict[str, pd.Series] = {}
-    for i, column in enumerate(list(parts[0]) if parts else []):
-        if i % TRIM_EVERY == TRIM_EVERY - 1:  # the freed pieces (small: glibc's heap) back
-            release_freed_memory()
-        pieces = [pd.Series(p.pop(column), copy=False) for p in parts]
-        union = category_union([s.dtype for s in pieces])
-        if union is not None:  # recoded (astype keeps a category equal as a set as it is)
-            pieces = [s.cat.set_categories(union) for s in pieces]
-        out[column] = pd.concat(pieces, ignore_index=True)
-        del pieces
-    return pd.DataFrame(out, copy=False)  # not consolidated: no copy of every column
 
 
 def stacked(parts: list[pd.DataFrame]) -> pd.DataFrame:

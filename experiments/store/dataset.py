@@ -250,13 +250,13 @@ def row_count(records: list[dict[str, Any]]) -> int:
 
 def scan_sweep(
     sweep_dir: Path, columns: list[str] | None = None, exclude: tuple[str, ...] = ()
-) -> tuple[Iterator[pd.DataFrame], pd.DataFrame]:
-    """(each live fragment's checked rows as a frame, one at a time, in :func:`load_sweep`'s
-    order; every run record, the fields ``exclude`` left out): :func:`load_sweep` in memory
-    bounded by a fragment, for a reader that keeps only part of each (``columns``: only
-    these, those the sweep has). A
-    fragment that a compaction removes while it is read raises :class:`StoreError` naming it
-    (open the sweep again)."""
+) -> tuple[Iterator[pa.Table], pd.DataFrame]:
+    """(each live fragment's checked rows as an Arrow table of the sweep's unified schema,
+    one at a time, in :func:`load_sweep`'s order; every run record, the fields ``exclude``
+    left out): :func:`load_sweep` in memory bounded by a fragment, for a reader that keeps
+    only part of each (``columns``: only these, those the sweep has). A fragment that a
+    compaction removes while it is read raises :class:`StoreError` naming it (open the
+    sweep again)."""
     sweep_dir = Path(sweep_dir)
     if not (sweep_dir / RUNS_DIR).is_dir():
         raise StoreError(sweep_dir, f"no {RUNS_DIR}/ folder: not a sweep folder")
@@ -267,7 +267,7 @@ def scan_sweep(
         return iter(()), runs_table(records, exclude)
     present = None if columns is None else [c for c in columns if c in schema.names]
     tables = iter_tables(frags, schema, present)
-    return (table.to_pandas() for table in tables), runs_table(records, exclude)
+    return tables, runs_table(records, exclude)
 
 
 def load_sweep(
