@@ -167,6 +167,8 @@ def flatten_kept(sweep_dir: Path, configs: pd.Series) -> None:
     if _read_kept(path, missing).issuperset(digests):  # every one now in the process's table
         return
     table = config_table(pd.Series(texts, dtype=object)).reset_index(drop=True)  # others parsed
-    table[DIGEST] = digests
+    # joined, not inserted: the table of configs read back and parsed is made of a block per
+    # leaf, and pandas warns of an insert into more than 100 blocks
+    table = pd.concat([table, pd.Series(digests, name=DIGEST, dtype=object)], axis=1)
     with contextlib.suppress(OSError):
         write_parquet_atomic(table, path, {CODE_META: _code()})

@@ -5,6 +5,7 @@ one made by other flattening code is not used; a new config rewrites the file.""
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import pandas as pd
@@ -69,6 +70,24 @@ def test_a_new_config_rewrites_the_file_and_a_bad_one_is_not_used(
     table = config_table(configs)
     assert len(fresh_process) == 12 + 6 and table.loc["r3", "detector.threshold"] == "3"
     assert pq.read_table(tmp_path / KEPT_FILE).num_rows == 6  # whole again
+
+
+def test_configs_added_since_the_file_was_kept_are_kept_without_a_warning(
+    tmp_path: Path, fresh_process
+) -> None:
+    """A report after a re-run added runs: the configs read back and those parsed, of more
+    than 100 leaves each (a real config has ~90-130), are kept without pandas' warning of a
+    highly fragmented frame (it was printed on the user's terminal)."""
+    texts = [json.dumps({f"g{j}": {"v": i if j == 0 else j} for j in range(120)}, sort_keys=True)
+             for i in range(10)]  # fmt: skip
+    configs = pd.Series(texts, dtype=object)
+    flatten_kept(tmp_path, configs.iloc[:5])
+    flat_configs._FLAT_CONFIGS.clear()  # another process
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        flatten_kept(tmp_path, configs)
+    kept = pq.read_table(tmp_path / KEPT_FILE)
+    assert kept.num_rows == 10 and len(kept.column_names) == 121
 
 
 def test_a_sweep_folder_it_cannot_write_is_read_without_keeping(
