@@ -56,15 +56,43 @@ def leaf_text(value: object) -> str:
     return json.dumps(value, sort_keys=True)
 
 
+#: Dotted keys by (prefix, key) and leaf texts by (type, value) of the scalars :func:`_flat`
+#: met (a ``grand`` sweep's 40,320 configs of ~130 leaves repeat a few thousand distinct
+#: ones: 1.7 → 1.1 s). Not kept: NaN (never equal to itself) and zero (``0.0`` and ``-0.0``
+#: are one key, two texts).
+_NAMES: dict[tuple[str, str, str], str] = {}
+_TEXTS: dict[tuple[type, object], str] = {}
+
+
 def _flat(tree: dict, prefix: str = "") -> dict[str, str]:
     """``{"a": {"b": 1}}`` → ``{"a.b": "1"}``: each leaf as its JSON text (lists, scalars
     and empty dicts are leaves; keys and texts interned: a sweep's runs share them)."""
     out: dict[str, str] = {}
+    names, texts = _NAMES, _TEXTS
     for key, value in tree.items():
         if isinstance(value, dict) and value:
-            out.update(_flat(value, f"{prefix}{key}."))
+            inner = names.get((prefix, key, "."))
+            if inner is None:
+                inner = names[prefix, key, "."] = f"{prefix}{key}."
+            out.update(_flat(value, inner))
+            continue
+        name = names.get((prefix, key, ""))
+        if name is None:
+            name = names[prefix, key, ""] = sys.intern(f"{prefix}{key}")
+        kind = type(value)
+        if (
+            kind is str
+            or kind is int
+            or (kind is float and value == value and value != 0.0)  # not NaN, 0.0 or -0.0
+            or kind is bool
+            or value is None
+        ):
+            text = texts.get((kind, value))
+            if text is None:
+                text = texts[kind, value] = sys.intern(leaf_text(value))
         else:
-            out[sys.intern(f"{prefix}{key}")] = sys.intern(leaf_text(value))
+            text = sys.intern(leaf_text(value))
+        out[name] = text
     return out
 
 

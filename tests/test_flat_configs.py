@@ -97,3 +97,16 @@ def test_a_sweep_folder_it_cannot_write_is_read_without_keeping(
     flatten_kept(tmp_path, _configs(3))
     assert len(config_table(_configs(3))) == 3 and len(fresh_process) == 3
     assert (tmp_path / KEPT_FILE.parent).is_file()
+
+
+def test_leaves_met_before_keep_their_own_text() -> None:
+    """Texts kept by type and value: 1, 1.0 and True, 0.0 and -0.0, NaN and the infinities,
+    each met twice (second config in reverse order), give ``json.dumps``' text every time."""
+    values = [1, 1.0, True, 0.0, -0.0, float("nan"), float("inf"), -float("inf"), None, "1",
+              2.5, [1, 2.5], {}, ""]  # fmt: skip
+    configs = [{"g": {f"k{i}": v for i, v in enumerate(values)}, "top": v} for v in values]
+    configs += configs[::-1]
+    for config in configs:
+        flat = flat_configs._flat(json.loads(json.dumps(config)))
+        expected = {f"g.k{i}": json.dumps(v, sort_keys=True) for i, v in enumerate(values)}
+        assert flat == {**expected, "top": json.dumps(config["top"], sort_keys=True)}
