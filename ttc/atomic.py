@@ -4,6 +4,7 @@ into place, so a reader (or a killed process) never sees half a file."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import socket
 import tempfile
@@ -21,8 +22,12 @@ def atomic_write(path: Path | str, write: Callable[[Path], None], mode: int = 0o
     private; results are for everyone to read).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temporary_prefix(path.name), suffix=".tmp")
+    prefix = temporary_prefix(path.name)
+    try:  # the folder made only when missing (a sweep writes thousands of records into one)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix=".tmp")
+    except FileNotFoundError:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix=".tmp")
     os.close(fd)
     try:
         write(Path(tmp))
@@ -44,6 +49,7 @@ def write_bytes_atomic(data: bytes, path: Path | str) -> Path:
 STALE_AFTER_S = 3600.0
 
 
+@functools.cache
 def _host() -> str:
     return socket.gethostname().replace(".", "_").replace("-", "_")
 
