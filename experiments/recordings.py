@@ -111,9 +111,9 @@ def recording_entries(runs: pd.DataFrame, flat: pd.DataFrame | None = None) -> s
     _, firsts, group = np.unique(coded, axis=0, return_index=True, return_inverse=True)
     first = firsts[group.ravel()]  # (n,) the first run of each run's group
     constant = set()
-    for key in flat.columns:
+    for key in (k for k in flat.columns if k not in choices):
         codes = pd.factorize(flat[key], use_na_sentinel=False)[0]
-        if key not in choices and (codes == codes[first]).all():
+        if (codes == codes[first]).all():
             constant.add(key)
     return constant
 
