@@ -196,8 +196,7 @@ def as_frame(parts: list[pa.Table], with_nulls: AbstractSet[str]) -> pd.DataFram
     for name in frame.columns:
         column = frame[name]
         if isinstance(column.dtype, pd.CategoricalDtype):
-            sorted_categories = pd.Index(sorted(column.cat.categories))
-            frame[name] = column.cat.set_categories(sorted_categories)
+            frame[name] = column.cat.set_categories(category_union([column.dtype]))
         elif name in with_nulls and column.dtype.kind in "iu":
             frame[name] = column.astype(np.float64)
         elif name in with_nulls and column.dtype.kind == "b":

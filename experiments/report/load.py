@@ -5,7 +5,7 @@ intermediate arrays of a run's frame pair (recomputed through the stage cache)."
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -137,6 +137,18 @@ DETAILS_KEPT = 16
 IMAGES_KEPT = 2 * DETAILS_KEPT
 
 
+def _most_recent(kept: dict, key: Any, limit: int, make: Callable[[], Any]) -> Any:
+    """``kept[key]``, made by ``make()`` when absent; ``kept`` holds the ``limit`` most
+    recently used (its order: least recently used first)."""
+    if key in kept:
+        kept[key] = kept.pop(key)  # the most recently used last
+        return kept[key]
+    kept[key] = value = make()
+    while len(kept) > limit:
+        del kept[next(iter(kept))]
+    return value
+
+
 @dataclass
 class Context:
     """What a report needs besides the sweep tables: data root, stage cache, pair details
@@ -155,33 +167,30 @@ class Context:
         one that needs the YOLOv3-tiny files finds them as the sweep did
         (:func:`experiments.data.first_run.ensure_model_files`). The :data:`DETAILS_KEPT` most
         recently used are kept (a report asks for a pair again soon after, if at all)."""
-        key = (run_id, prev, curr)
-        if key in self.details:
-            self.details[key] = self.details.pop(key)  # the most recently used last
-            return self.details[key]
+        return _most_recent(self.details, (run_id, prev, curr), DETAILS_KEPT,
+                            lambda: self._new_detail(runs, run_id, prev, curr))  # fmt: skip
+
+    def _new_detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
+        """:meth:`detail` when it is not kept: the YOLOv3-tiny files found first if needed."""
         settings, frames = self.setup(runs, run_id)
         if not self.models_found and uses_bundled_files(settings.objects):
             ensure_model_files()
             self.models_found = True
-        self.details[key] = pair_detail(settings, frames, prev, curr, self.cache, self.image)
+        detail = pair_detail(settings, frames, prev, curr, self.cache, self.image)
         self.calls += 1
-        while len(self.details) > DETAILS_KEPT:  # each holds two images: a few MB
-            del self.details[next(iter(self.details))]
-        return self.details[key]
+        return detail
 
     def image(self, ref: Any) -> np.ndarray:
         """A frame's image (:func:`ttc.io.frames.read_image` of its file or bag message),
         read once for every pair detail that shows it (``grand`` 0–18's report: 162 images of
         19 frames, 0.9 s) and read-only; the :data:`IMAGES_KEPT` most recently used kept."""
-        if ref in self.images:
-            self.images[ref] = self.images.pop(ref)  # the most recently used last
-            return self.images[ref]
-        image = read_image(ref)
-        image.flags.writeable = False  # shared by the details: drawn on copies only
-        self.images[ref] = image
-        while len(self.images) > IMAGES_KEPT:
-            del self.images[next(iter(self.images))]
-        return image
+
+        def read() -> np.ndarray:
+            image = read_image(ref)
+            image.flags.writeable = False  # shared by the details: drawn on copies only
+            return image
+
+        return _most_recent(self.images, ref, IMAGES_KEPT, read)
 
     def drop_details(self) -> None:
         """Forget the pair details and images kept (FP.5 and FP.6 ask for them; a report's
