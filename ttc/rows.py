@@ -1,12 +1,14 @@
-"""The rows of a run: one per (frame pair, matched box pair), built in one place.
+"""The columns of a run's rows: one row per (frame pair, matched box pair), built in one place.
 
 A row is the pair's columns (:func:`pair_columns`: frames, ``dt`` in s, scan and box
-counts, keypoint and match counts, stage times in ms, cache flags), then the box's
-(:func:`box_head`: box pair, lead flag, class, confidence, box in px), then FP.2
-(:func:`lidar_columns`, distances in m, TTC in s) and FP.3/FP.4 (:func:`camera_columns`),
-then ``box_shared_matches`` and ``error``. A pair that could not be read is one
-:func:`error_row`. The fused columns and the track are added over a whole run
-(:func:`ttc.engine.runner.finish_rows`).
+counts, keypoint and match counts, stage times in ms, cache flags), the current box's own
+lidar points (:func:`object_columns`), the box pair's (:func:`box_columns`: box pair, lead
+flag, class, confidence, box in px), then FP.2 (:func:`lidar_columns`, distances in m, TTC in
+s) and FP.3/FP.4 (:func:`camera_columns`), or the empty result of a box without a previous
+one (:func:`unmatched_columns`), then ``box_shared_matches`` and ``error``. A pair that could
+not be read is one row of :func:`error_columns`. Each of these is a part that many rows share
+(:class:`ttc.row_parts.RowParts` makes the rows one table). The fused columns and the track
+are added over a whole run (:func:`ttc.engine.runner.finish_rows`).
 
 :class:`PairDetail` holds the intermediate arrays of one frame pair (for pictures and the
 report's explanations).
@@ -41,8 +43,9 @@ EMPTY_BOX_RESULT: dict[str, Any] = {
 PAIR_TIMED_STAGES = ("objects", "lidar", "keypoints", "descriptors", "matching", "box_matching")
 
 
-def error_row(prev: int, curr: int, dt: float, error: Exception) -> dict[str, Any]:
-    """The one row of a frame pair (``dt`` s apart) whose input could not be read."""
+def error_columns(prev: int, curr: int, dt: float) -> dict[str, Any]:
+    """The columns of a frame pair (``dt`` s apart) whose input could not be read (its one
+    row's ``error`` holds the reason)."""
     row: dict[str, Any] = {
         "prev_frame": prev, "frame": curr, "dt": dt, "scan_points_prev": 0,
         "scan_points_curr": 0, "scan_short": False, "scan_dropped_curr": 0,
@@ -53,7 +56,7 @@ def error_row(prev: int, curr: int, dt: float, error: Exception) -> dict[str, An
         "prev_box": -1, "curr_box": -1, "is_lead": True, "box_class": -1,
         "box_confidence": np.nan, "box_x": -1, "box_y": -1, "box_w": -1, "box_h": -1,
         **EMPTY_BOX_RESULT, "lidar_reason": reasons.FRAME_ERROR,
-        "camera_reason": reasons.FRAME_ERROR, "box_shared_matches": 0, "error": str(error),
+        "camera_reason": reasons.FRAME_ERROR,
     }  # fmt: skip
     return row
 
@@ -98,14 +101,12 @@ def pair_columns(
 _COUNTS = ("keypoints_prev", "keypoints_curr", "described_curr", "matches_total")
 
 
-def box_head(
-    objects: dict[str, np.ndarray], owners: np.ndarray, prev_box: int, curr_box: int, lead: int
+def box_columns(
+    objects: dict[str, np.ndarray], prev_box: int, curr_box: int, lead: int
 ) -> dict[str, Any]:
-    """The box columns of box pair ``prev_box`` → ``curr_box`` of the current frame's
+    """The columns of box pair ``prev_box`` → ``curr_box`` (−1: none) of the current frame's
     ``objects`` (``roi`` x, y, w, h in px; ``class_id``; ``confidence``); ``lead``: the lead
-    box (−1: none). A pair without a previous box (−1) gets the empty FP.2–FP.4 result with
-    reason ``no_lead_box`` (no current box either) or ``no_box_match``, and the count of the
-    current box's lidar points (``owners``: the box index of each lane point)."""
+    box (−1: none)."""
     row: dict[str, Any] = {
         "prev_box": prev_box,
         "curr_box": curr_box,
@@ -120,12 +121,16 @@ def box_head(
         )  # fmt: skip
     else:
         row.update(box_class=-1, box_confidence=np.nan, box_x=-1, box_y=-1, box_w=-1, box_h=-1)
-    if prev_box < 0:
-        reason = reasons.NO_LEAD_BOX if curr_box < 0 else reasons.NO_BOX_MATCH
-        row.update(EMPTY_BOX_RESULT, lidar_reason=reason, camera_reason=reason)
-        if curr_box >= 0:
-            row["lidar_points_curr"] = int(np.sum(owners == curr_box))
     return row
+
+
+def unmatched_columns(curr_box: int, lidar_points_curr: int) -> dict[str, Any]:
+    """The FP.2–FP.4 columns of a box pair without a previous box: the empty result with
+    reason ``no_lead_box`` (no current box either, ``curr_box`` −1) or ``no_box_match``, and
+    the count of the current box's lidar points."""
+    reason = reasons.NO_LEAD_BOX if curr_box < 0 else reasons.NO_BOX_MATCH
+    return {**EMPTY_BOX_RESULT, "lidar_reason": reason, "camera_reason": reason,
+            "lidar_points_curr": lidar_points_curr}  # fmt: skip
 
 
 #: Columns of the current box's own lidar points (:func:`object_columns`), empty values.

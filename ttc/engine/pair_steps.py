@@ -3,7 +3,8 @@
 :class:`PairSteps` holds the arrays of one frame pair (objects, lane points, keypoints, the
 matcher's candidates) that every setting of a group reads, and computes each piece of
 FP.1–FP.4 once for all the settings that share its inputs (the table in
-:mod:`ttc.engine.runner`). Rows are built by :mod:`ttc.rows`.
+:mod:`ttc.engine.runner`). Each row is kept as the parts it shares with other rows
+(:class:`ttc.row_parts.RowParts`); their columns are built by :mod:`ttc.rows`.
 """
 
 from __future__ import annotations
@@ -19,13 +20,14 @@ from ttc.engine.cache import Arrays, Lookup, StageCache
 from ttc.features.keypoints import X, Y
 from ttc.features.matching import current_keypoints, pair_matches
 from ttc.io.calibration import Calibration
+from ttc.row_parts import Row, RowParts
 from ttc.rows import (
-    MEMBER,
-    box_head,
+    box_columns,
     camera_columns,
     lidar_columns,
     object_columns,
     pair_columns,
+    unmatched_columns,
 )
 from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.box_matching import count_shared_matches, match_boxes
@@ -87,14 +89,17 @@ class PairSteps:
         curr: int,
         per_frame: dict[str, dict[int, Lookup]],
         match: Lookup,
+        parts: RowParts,
         frame_lidar: dict[int, FrameLidar] | None = None,
         cache: StageCache | None = None,
     ) -> None:
-        """``frame_lidar``: each frame's lidar association, shared by the pairs of a run (a
+        """``parts``: where the rows' parts are kept (shared by a batch's pairs).
+        ``frame_lidar``: each frame's lidar association, shared by the pairs of a run (a
         frame is the current one of a pair and the previous one of the next); None: this
         pair's own. ``cache``: where a frame's association is kept for the other runs of this
         process (:meth:`StageCache.keep`; it depends on none of a group's own axes)."""
         self.frames, self.calib, self.dt, self.prev, self.curr = frames, calib, dt, prev, curr
+        self.parts = parts
         self.frame_lidar = {} if frame_lidar is None else frame_lidar
         self.per_frame, self.match, self.cache = per_frame, match, cache
         self.obj = {i: per_frame["objects"][i].arrays for i in (prev, curr)}
@@ -104,48 +109,81 @@ class PairSteps:
         self.kp_curr = current_keypoints(desc_curr["keypoints"], match.arrays)  # KLT: tracked
         self.xy_prev = self.desc_prev["keypoints"][:, [X, Y]]
         self.xy_curr = self.kp_curr[:, [X, Y]]
-        self.memo: dict[str, dict] = {k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base")}
+        self.memo: dict[str, dict] = {
+            k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base", "boxes", "head", "rows")
+        }
         self.assoc: tuple | None = None
         self._projection: bytes | None = None
 
-    def rows(
-        self, s: Settings, k: dict[str, str], member: int, detail: dict | None = None
-    ) -> list[dict[str, Any]]:
-        """The rows of this pair under setting ``s`` (step keys ``k``), lead box first, each
-        with :data:`MEMBER` = ``member``. ``detail``, when given, receives the intermediate
-        arrays (see :class:`~ttc.rows.PairDetail`)."""
+    def rows(self, s: Settings, k: dict[str, str], detail: dict | None = None) -> list[Row]:
+        """The rows of this pair under setting ``s`` (step keys ``k``), lead box first (the
+        same list for the settings with the same step keys). ``detail``, when given, receives
+        the intermediate arrays (see :class:`~ttc.rows.PairDetail`)."""
+        key = tuple(k.values())
+        if detail is None and key in self.memo["rows"]:
+            return self.memo["rows"][key]
         selected, ms_select = _memo(
             self.memo["sel"], k["selector"], lambda: pair_matches(self.match.arrays, s.selector)
         )
         box_matches, ms_fp1 = self._fp1(s, k, selected)
         uv, owners, lead_box, objects, ms_assoc = self._association(s)
-        box_pairs = list(
-            zip(box_matches.prev_box.tolist(), box_matches.curr_box.tolist(), strict=True)
-        )
-        shared = dict(zip(box_matches.curr_box.tolist(), box_matches.shared.tolist(), strict=True))
-        if lead_box >= 0 and lead_box in [c for _, c in box_pairs]:
-            box_pairs.sort(key=lambda pc: pc[1] != lead_box)
-        else:
-            box_pairs.insert(0, (-1, lead_box))  # the lead row is always present
+        box_pairs, shared = self._box_pairs(k, box_matches, lead_box)
         base = self._base(k, selected, ms_select, ms_fp1, ms_assoc)
         rows = []
         for prev_box, curr_box in box_pairs:
-            row = {**base, **object_columns(objects[self.curr], curr_box),
-                   **box_head(self.obj[self.curr], owners[self.curr], prev_box, curr_box,
-                              lead_box)}  # fmt: skip
-            if curr_box >= 0 and curr_box != lead_box and prev_box < 0:
-                row["lidar_points_curr"] = int(objects[self.curr].n_points[curr_box])
+            obj, box, unmatched = self._head(prev_box, curr_box, lead_box, owners, objects)
             if prev_box >= 0:
-                row.update(self._fp2(s, k, owners, objects, prev_box, curr_box, lead_box))
-                row.update(self._fp34(s, k, selected, curr_box, detail, curr_box == lead_box))
-            row["box_shared_matches"] = shared.get(curr_box, 0) if prev_box >= 0 else 0
-            row["error"] = ""
-            row[MEMBER] = member
-            rows.append(row)
+                lidar = self._fp2(s, k, owners, objects, prev_box, curr_box, lead_box)
+                camera = self._fp34(s, k, selected, curr_box, detail, curr_box == lead_box)
+                rows.append((base, obj, box, lidar, camera, -1, -1, shared.get(curr_box, 0), ""))
+            else:
+                rows.append((base, obj, box, -1, -1, unmatched, -1, 0, ""))
         if detail is not None:
             detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
                           lead_box=lead_box, objects=objects)  # fmt: skip
+        self.memo["rows"][key] = rows
         return rows
+
+    def _box_pairs(
+        self, k: dict[str, str], box_matches: Any, lead_box: int
+    ) -> tuple[list[tuple[int, int]], dict[int, int]]:
+        """(the box pairs of FP.1's result, lead first: one ``(-1, lead)`` when the lead has
+        no match; shared matches by current box), once per FP.1 result."""
+        key = (k["selector"], k["box_matching"])
+        if key not in self.memo["boxes"]:
+            prev, curr = box_matches.prev_box.tolist(), box_matches.curr_box.tolist()
+            pairs = list(zip(prev, curr, strict=True))
+            if lead_box >= 0 and lead_box in curr:
+                pairs.sort(key=lambda pc: pc[1] != lead_box)
+            else:
+                pairs.insert(0, (-1, lead_box))  # the lead row is always present
+            shared = dict(zip(curr, box_matches.shared.tolist(), strict=True))
+            self.memo["boxes"][key] = (pairs, shared)
+        return self.memo["boxes"][key]
+
+    def _head(
+        self, prev_box: int, curr_box: int, lead_box: int, owners: dict, objects: dict
+    ) -> tuple[int, int, int]:
+        """Parts of a box pair that no step axis changes: the current box's own lidar points,
+        the box pair's columns, and (no previous box) the empty result, −1 otherwise."""
+        key = (prev_box, curr_box)
+        if key not in self.memo["head"]:
+            add, assoc = self.parts.add, objects[self.curr]
+            unmatched = -1
+            if prev_box < 0:
+                if curr_box < 0:
+                    points = 0
+                elif curr_box == lead_box:  # its lane points
+                    points = int(np.sum(owners[self.curr] == curr_box))
+                else:
+                    points = int(assoc.n_points[curr_box])
+                unmatched = add("unmatched", unmatched_columns(curr_box, points))
+            self.memo["head"][key] = (
+                add("object", object_columns(assoc, curr_box)),
+                add("box", box_columns(self.obj[self.curr], prev_box, curr_box, lead_box)),
+                unmatched,
+            )
+        return self.memo["head"][key]
 
     def _association(self, s: Settings) -> tuple[dict, dict, int, dict, float]:
         """(lane points' pixels, their owner box, lead box, every box's own lidar points
@@ -212,8 +250,9 @@ class PairSteps:
 
     def _base(
         self, k: dict[str, str], selected: Any, ms_select: float, ms_fp1: float, ms_assoc: float
-    ) -> dict[str, Any]:
-        """The pair's columns (:func:`ttc.rows.pair_columns`), once per selection and FP.1."""
+    ) -> int:
+        """The pair's columns (:func:`ttc.rows.pair_columns`), once per selection and FP.1:
+        their part's index."""
         key = (k["selector"], k["box_matching"])
         if key not in self.memo["base"]:
             prev, curr, pf = self.prev, self.curr, self.per_frame
@@ -236,10 +275,10 @@ class PairSteps:
                 for stage in CACHED_STAGE_NAMES
             }
             boxes = {i: len(self.obj[i]["roi"]) for i in (prev, curr)}
-            self.memo["base"][key] = pair_columns(
+            self.memo["base"][key] = self.parts.add("pair", pair_columns(
                 prev, curr, self.dt, self.lane, boxes, counts, ms, cached,
                 self.frames.min_scan_points,
-            )  # fmt: skip
+            ))  # fmt: skip
         return self.memo["base"][key]
 
     def _fp2(
@@ -251,8 +290,9 @@ class PairSteps:
         prev_box: int,
         curr_box: int,
         lead_box: int,
-    ) -> dict[str, Any]:
-        """FP.2 of a box pair: the lead's ego-lane points, every other box's own points.
+    ) -> int:
+        """FP.2 of a box pair (its part's index): the lead's ego-lane points, every other
+        box's own points.
 
         It reads the two frames' lidar associations, the boxes, the interval and the
         estimator, and no camera stage: besides this pair's memo (the settings of its group),
@@ -280,8 +320,8 @@ class PairSteps:
             columns = lidar_columns(lid, pts_prev, pts_curr, ms)
             if keyed:
                 self.cache.keep(name, {column: np.asarray(v) for column, v in columns.items()})
-        self.memo["fp2"][key] = columns
-        return columns
+        self.memo["fp2"][key] = self.parts.add("lidar", columns)
+        return self.memo["fp2"][key]
 
     def _fp34(
         self,
@@ -291,7 +331,9 @@ class PairSteps:
         curr_box: int,
         detail: dict | None = None,
         is_lead: bool = False,
-    ) -> dict[str, Any]:
+    ) -> int:
+        """FP.3/FP.4 of the current box (its part's index); ``detail`` receives the lead's
+        kept and removed matches."""
         fp3_key = (k["selector"], curr_box, s.box_matching.shrink, k["keypoint_filter"])
         if fp3_key not in self.memo["fp3"]:
             roi = self.obj[self.curr]["roi"][curr_box]
@@ -317,5 +359,7 @@ class PairSteps:
             cam, ms_fp4 = _timed(
                 lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc, box_width=width)
             )
-            self.memo["fp4"][fp4_key] = camera_columns(cam, filt, ms_fp3, ms_fp4)
+            self.memo["fp4"][fp4_key] = self.parts.add(
+                "camera", camera_columns(cam, filt, ms_fp3, ms_fp4)
+            )
         return self.memo["fp4"][fp4_key]

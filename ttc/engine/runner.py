@@ -20,7 +20,9 @@ FP.4               the FP.3 result, camera estimator
 A shared piece is timed once and reported in every row that uses it. A setting that raises
 gets its exception instead of rows; the others go on. :func:`run_setting` (one setting,
 raising its exception) and :func:`pair_detail` (one frame pair with its intermediate
-arrays) are the same path. Rows are built by :mod:`ttc.rows`.
+arrays) are the same path. A row is kept as the parts it shares with others
+(:class:`ttc.row_parts.RowParts`, columns built by :mod:`ttc.rows`) and the batch's rows become
+one frame once all are done.
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ from ttc.io.frames import (
     timestamps_file,
     with_truth,
 )
-from ttc.rows import MEMBER, PairDetail, error_row
+from ttc.row_parts import MemberRows, RowParts
+from ttc.rows import MEMBER, PairDetail, error_columns
 from ttc.settings import FrameRange, Settings, axes_with_role
 from ttc.steps.fusion import FUSION_INPUTS, fused_columns
 from ttc.steps.tracks import TRACK_ID, chain_tracks
@@ -191,10 +194,12 @@ def run_settings(
     groups: dict[str, list[int]] = {}
     for i in valid:
         groups.setdefault(upstream_key(settings[i]), []).append(i)
-    parts = []
+    parts, rows = RowParts(), []
     for members in groups.values():
-        parts.extend(_group_rows(settings, members, frames, cache, indices, times, calib, failed))
-    return with_truth(_finish(settings, parts, failed), frames.sequence_dir), failed
+        rows.extend(
+            _group_rows(settings, members, frames, cache, indices, times, calib, parts, failed)
+        )
+    return with_truth(_finish(settings, parts, rows, failed), frames.sequence_dir), failed
 
 
 def pair_detail(
@@ -219,9 +224,10 @@ def pair_detail(
     _, per_frame, matches, broken = next(stream(settings, pair, cache, [prev, curr]))
     if broken:
         raise next(iter(broken.values()))
-    shared = PairSteps(pair, calib, dt, prev, curr, per_frame, matches[(prev, curr)])
+    parts = RowParts()
+    shared = PairSteps(pair, calib, dt, prev, curr, per_frame, matches[(prev, curr)], parts)
     detail: dict[str, Any] = {}
-    rows = pd.DataFrame.from_records(shared.rows(settings, member_keys(settings), 0, detail))
+    rows = parts.table([(0, shared.rows(settings, member_keys(settings), detail))])
     empty = np.zeros(0, dtype=np.int64)
     return PairDetail(
         prev=prev,
@@ -242,15 +248,13 @@ def pair_detail(
 
 
 def _finish(
-    settings: Sequence[Settings], parts: list[tuple[int, list[dict]]], failed: dict[int, Exception]
+    settings: Sequence[Settings], parts: RowParts, rows: MemberRows, failed: dict[int, Exception]
 ) -> pd.DataFrame:
     """One frame of every member's rows (failed members left out) through
     :func:`finish_rows`. The rows become one frame first (one frame per member would cost
     more than the rows themselves)."""
-    records = [row for member, rows in parts if member not in failed for row in rows]
-    if not records:
-        return pd.DataFrame()
-    return finish_rows(settings, pd.DataFrame.from_records(records), failed)
+    table = parts.table([(member, mine) for member, mine in rows if member not in failed])
+    return finish_rows(settings, table, failed) if len(table) else table
 
 
 def _finished_alone(settings: Settings, rows: pd.DataFrame) -> pd.DataFrame:
@@ -271,10 +275,12 @@ def _group_rows(
     indices: list[int],
     times: np.ndarray | None,
     calib: Calibration,
+    parts: RowParts,
     failed: dict[int, Exception],
-) -> list[tuple[int, list[dict]]]:
-    """Rows of the members of one upstream group: ``[(member, rows)]``."""
-    out: dict[int, list[dict]] = {m: [] for m in members}
+) -> list[tuple[int, list]]:
+    """Rows of the members of one upstream group: ``[(member, rows)]`` (their parts kept in
+    ``parts``)."""
+    out: dict[int, list] = {m: [] for m in members}
     keys = {m: member_keys(settings[m]) for m in members}
     first = settings[members[0]]
     frame_lidar: dict = {}  # each frame's lidar association, shared by its two pairs
@@ -284,18 +290,20 @@ def _group_rows(
                 dt = pair_interval(times, prev, curr, frames.step)
                 if (prev, curr) not in matches:
                     error = broken.get(curr) or broken[prev]
+                    row = (-1,) * 6 + (parts.add("error", error_columns(prev, curr, dt)), 0,
+                                       str(error))  # fmt: skip
                     for m in members:
-                        out[m].append({**error_row(prev, curr, dt, error), MEMBER: m})
+                        out[m].append(row)
                     continue
                 for done in [i for i in frame_lidar if i != prev]:
                     del frame_lidar[done]
                 shared = PairSteps(frames, calib, dt, prev, curr, per_frame,
-                                   matches[(prev, curr)], frame_lidar, cache)  # fmt: skip
+                                   matches[(prev, curr)], parts, frame_lidar, cache)  # fmt: skip
                 for m in members:
                     if m in failed:
                         continue
                     try:
-                        out[m].extend(shared.rows(settings[m], keys[m], m))
+                        out[m].extend(shared.rows(settings[m], keys[m]))
                     except Exception as exc:  # a setting that raises costs only itself
                         failed[m] = exc
     except Exception as exc:  # the group's stages raised: every member fails with it
