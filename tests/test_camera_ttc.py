@@ -12,6 +12,8 @@ from ttc.steps.camera_ttc import (
     CameraTTCParams,
     camera_ttc,
     distance_ratios,
+    pair_ratios,
+    ratio_source,
     ttc_from_ratio,
 )
 
@@ -139,3 +141,24 @@ def test_the_pair_distance_can_follow_the_box_width() -> None:
     assert camera_ttc(prev, curr, DT, params).n_pairs == len(d)  # no box: absolute only
     with pytest.raises(ValueError, match="min_box_fraction"):
         CameraTTCParams(min_box_fraction=1.5)
+
+
+def test_statistics_of_one_ratio_source_share_the_ratios() -> None:
+    """``median_ratio`` and ``mean_ratio`` at one least distance reduce the same pair ratios
+    (what the engine computes once for both): given, they give the same result as made
+    inside; ``vertical_ratio``, another distance or box width is another source; the
+    similarity fit uses none."""
+    prev = keypoints(60, seed=3)
+    curr = scaled(prev, 1.03, (2.0, -1.0)).astype(np.float32)  # as the engine's keypoints
+    median, mean = (
+        CameraTTCParams("median_ratio", 40.0, 0.5),
+        CameraTTCParams("mean_ratio", 40.0, 0.5),
+    )
+    assert ratio_source(median, 120.0) == ratio_source(mean, 120.0) == ("distance_ratios", 60.0)
+    ratios = pair_ratios(prev, curr, median, 120.0)
+    for params in (median, mean):
+        given = camera_ttc(prev, curr, DT, params, box_width=120.0, ratios=ratios)
+        assert given == camera_ttc(prev, curr, DT, params, box_width=120.0)
+    assert ratio_source(median, 40.0) != ratio_source(median, 120.0)
+    assert ratio_source(CameraTTCParams("vertical_ratio", 40.0, 0.5), 120.0)[0] == "vertical_ratios"
+    assert ratio_source(CameraTTCParams("similarity_fit"), 120.0) is None

@@ -200,3 +200,29 @@ def test_a_box_pairs_lidar_ttc_is_kept_for_the_other_camera_stages_of_the_proces
     for s, got in zip(runs, rows, strict=True):
         alone, _ = run_settings([s], frames, StageCache(tmp_path, memory_mb=0))
         pd.testing.assert_frame_equal(got.drop(columns=untimed), alone.drop(columns=untimed))
+
+
+def test_ratio_statistics_share_their_pair_ratios(
+    kitti_dir: Path, cache: StageCache, monkeypatch
+) -> None:
+    """Settings that differ only in the camera ratio statistic compute each box's pair ratios
+    once (as many ratio computations as one of them alone), and each keeps the rows it has
+    alone (times aside)."""
+    from ttc.steps import camera_ttc as fp4
+
+    calls, real = [], fp4.distance_ratios
+    monkeypatch.setattr(fp4, "distance_ratios", lambda *a: calls.append(a) or real(*a))
+    frames = FrameRange(kitti_dir, 0, 4)
+    settings = [settings_from_config(composed([f"camera_ttc={n}"])) for n in ("median_ratio",
+                                                                              "mean_ratio")]  # fmt: skip
+    run_settings(settings[:1], frames, cache)
+    alone = len(calls)
+    rows, failed = run_settings(settings, frames, cache)
+    assert not failed and alone > 0 and len(calls) == 2 * alone
+    untimed = [c for c in rows if c.startswith(("ms_", "cached_"))]
+    for member, s in enumerate(settings):
+        mine = rows[rows[MEMBER] == member].drop(columns=[*untimed, MEMBER])
+        expected = run_setting(s, frames, cache).drop(columns=untimed)
+        pd.testing.assert_frame_equal(mine.reset_index(drop=True), expected)
+    assert (rows.loc[rows[MEMBER] == 0, "ttc_camera"].to_numpy()
+            != rows.loc[rows[MEMBER] == 1, "ttc_camera"].to_numpy()).any()  # fmt: skip

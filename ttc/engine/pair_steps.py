@@ -31,7 +31,7 @@ from ttc.rows import (
 )
 from ttc.settings import CACHED_STAGE_NAMES, FrameRange, Settings
 from ttc.steps.box_matching import count_shared_matches, match_boxes
-from ttc.steps.camera_ttc import camera_ttc
+from ttc.steps.camera_ttc import camera_ttc, pair_ratios, ratio_source
 from ttc.steps.keypoint_filter import filter_box_matches
 from ttc.steps.lidar import LeadAssociation, associate_lead
 from ttc.steps.lidar_ttc import lidar_ttc
@@ -110,7 +110,8 @@ class PairSteps:
         self.xy_prev = self.desc_prev["keypoints"][:, [X, Y]]
         self.xy_curr = self.kp_curr[:, [X, Y]]
         self.memo: dict[str, dict] = {
-            k: {} for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base", "boxes", "head", "rows")
+            k: {}
+            for k in ("sel", "fp1", "fp2", "fp3", "fp4", "base", "boxes", "head", "rows", "ratios")
         }
         self.assoc: tuple | None = None
         self._projection: bytes | None = None
@@ -355,11 +356,19 @@ class PairSteps:
         if fp4_key not in self.memo["fp4"]:
             kept_prev = self.xy_prev[selected.prev_idx[filt.kept]]
             kept_curr = self.xy_curr[selected.curr_idx[filt.kept]]
-            dt, width = self.dt, float(self.obj[self.curr]["roi"][curr_box][2])
+            dt, params = self.dt, s.camera_ttc
+            width = float(self.obj[self.curr]["roi"][curr_box][2])
+            ratios, ms_ratios = None, 0.0
+            if (source := ratio_source(params, width)) is not None:  # shared by the statistics
+                ratios, ms_ratios = _memo(
+                    self.memo["ratios"],
+                    (fp3_key, source),
+                    lambda: pair_ratios(kept_prev, kept_curr, params, width),
+                )
             cam, ms_fp4 = _timed(
-                lambda: camera_ttc(kept_prev, kept_curr, dt, s.camera_ttc, box_width=width)
+                lambda: camera_ttc(kept_prev, kept_curr, dt, params, box_width=width, ratios=ratios)
             )
             self.memo["fp4"][fp4_key] = self.parts.add(
-                "camera", camera_columns(cam, filt, ms_fp3, ms_fp4)
+                "camera", camera_columns(cam, filt, ms_fp3, ms_ratios + ms_fp4)
             )
         return self.memo["fp4"][fp4_key]

@@ -14,6 +14,7 @@ lidar association  boxes, points, shrink: a frame once per process (its runs)
 FP.1               selector, box matching
 FP.2               box pair, lidar estimator (once per process)
 FP.3               selector, box, box-matching shrink, keypoint filter
+FP.4 pair ratios   the FP.3 result, the ratios' source and least pair distance
 FP.4               the FP.3 result, camera estimator
 =================  ==========================================================
 

@@ -125,6 +125,27 @@ RATIO_SOURCES: dict[str, Callable[[np.ndarray, np.ndarray, float], np.ndarray]] 
 }
 
 
+def ratio_source(params: CameraTTCParams, box_width: float) -> tuple[str, float] | None:
+    """What the pair ratios of ``params``' estimator depend on besides the points: (the
+    ratios' source, the least pair distance in px for a box ``box_width`` px wide); None for
+    an estimator of :data:`POINT_ESTIMATORS` (it uses no pair ratios). Estimators with equal
+    sources (``median_ratio`` and ``mean_ratio`` at one ``min_dist``) reduce the same ratios."""
+    if params.name in POINT_ESTIMATORS:
+        return None
+    return RATIO_SOURCES.get(params.name, distance_ratios).__name__, params.threshold(box_width)
+
+
+def pair_ratios(
+    prev_xy: np.ndarray, curr_xy: np.ndarray, params: CameraTTCParams, box_width: float = 0.0
+) -> np.ndarray:
+    """The pair ratios (P,) that ``params``' ratio statistic reduces, of the kept matches'
+    keypoints (K × 2 pixels, row k ↔ row k) in a box ``box_width`` pixels wide."""
+    source = RATIO_SOURCES.get(params.name, distance_ratios)
+    prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
+    curr_xy = np.asarray(curr_xy, dtype=np.float64).reshape(-1, 2)
+    return source(prev_xy, curr_xy, params.threshold(box_width))
+
+
 def ttc_from_ratio(ratio: float, dt: float) -> float:
     """Raw constant-velocity TTC ``−dt / (1 − r)`` (seconds; ±inf at r = 1)."""
     with np.errstate(divide="ignore"):
@@ -137,11 +158,13 @@ def camera_ttc(
     dt: float,
     params: CameraTTCParams,
     box_width: float = 0.0,
+    ratios: np.ndarray | None = None,
 ) -> CameraTTCResult:
     """Camera TTC (seconds) from the kept matches' keypoints (K × 2 pixels, row k ↔ row k).
 
     ``dt``: seconds between the frames; ``box_width``: the current box's width (pixels), for
-    :meth:`CameraTTCParams.threshold`. Degenerate cases return NaN (no matches, no usable
+    :meth:`CameraTTCParams.threshold`; ``ratios``: these points' :func:`pair_ratios` for
+    ``params`` when made already (shared by the estimators of one :func:`ratio_source`). Degenerate cases return NaN (no matches, no usable
     pair) or +inf (ratio exactly 1, or a shrinking image: receding) with a reason code; only
     a non-positive ``dt`` or mismatched shapes raise (caller errors).
     """
@@ -157,8 +180,8 @@ def camera_ttc(
     if params.name in POINT_ESTIMATORS:
         r, n_used = POINT_ESTIMATORS[params.name](prev_xy, curr_xy, params)
     else:
-        pair_ratios = RATIO_SOURCES.get(params.name, distance_ratios)
-        ratios = pair_ratios(prev_xy, curr_xy, params.threshold(box_width))
+        if ratios is None:
+            ratios = pair_ratios(prev_xy, curr_xy, params, box_width)
         r, n_used = (
             (CAMERA_ESTIMATORS[params.name](ratios), len(ratios)) if len(ratios) else (nan, 0)
         )
