@@ -1,6 +1,7 @@
 """A batch's rows kept as shared parts (ttc.row_parts): the table made by columns is exactly
 pandas' ``DataFrame.from_records`` of the rows as dicts (the rows' definition), on real
-KITTI batches (matched, unmatched and unreadable pairs) and on parts that mix types."""
+KITTI batches (matched, unmatched and unreadable pairs) and on parts that mix types. Every
+table here is made by columns however few its rows (a few rows are made from the records)."""
 
 from __future__ import annotations
 
@@ -13,12 +14,19 @@ import pytest
 from experiments.config import frame_range_from_config, settings_from_config
 from tests.conftest import copy_frames
 from tests.test_beyond_rubric import composed
+from ttc import row_parts
 from ttc.engine import runner
 from ttc.engine.cache import StageCache
 from ttc.io.frames import frame_files
 from ttc.row_parts import KINDS, RowParts
 from ttc.rows import MEMBER
 from ttc.settings import FrameRange
+
+
+@pytest.fixture(autouse=True)
+def by_columns(monkeypatch) -> None:
+    """Tables made by columns however few their rows."""
+    monkeypatch.setattr(row_parts, "RECORDS_UP_TO", 0)
 
 
 def _row(own: tuple = (0, ""), **parts: int) -> tuple:

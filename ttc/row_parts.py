@@ -36,6 +36,9 @@ OWN_COLUMNS = ("box_shared_matches", "error")
 Row = tuple[Any, ...]
 #: Rows by setting: ``(member, its rows)``, in the order the table holds them.
 MemberRows = Sequence[tuple[int, Sequence[Row]]]
+#: Up to this many rows the table is made from the rows as dicts: a pair's detail (7 rows)
+#: took 1.5 ms so and 7.6 ms by columns (a small frame per kind and a gather per column).
+RECORDS_UP_TO = 64
 
 
 class RowParts:
@@ -69,8 +72,8 @@ class RowParts:
         """One frame of the rows (:meth:`records`' ``from_records``, made by columns); raises
         ValueError when a row's parts share a column or a kind's parts differ in columns."""
         n = sum(len(rows) for _, rows in members)
-        if n == 0:
-            return pd.DataFrame()
+        if n <= RECORDS_UP_TO:
+            return pd.DataFrame.from_records(self.records(members)) if n else pd.DataFrame()
         fields = list(zip(*(row for _, rows in members for row in rows), strict=True))
         refs = np.array(fields[: len(KINDS)], dtype=np.int64)  # kinds × rows
         kinds = [self._kind(kind, refs[i]) for i, kind in enumerate(KINDS)]
