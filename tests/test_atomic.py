@@ -9,7 +9,12 @@ from pathlib import Path
 
 import pytest
 
-from ttc.atomic import atomic_write, remove_stale_temporaries, write_bytes_atomic
+from ttc.atomic import (
+    atomic_write,
+    remove_stale_temporaries,
+    write_bytes_atomic,
+    write_bytes_identified,
+)
 
 
 def test_a_file_is_written_into_a_folder_made_when_missing(tmp_path: Path) -> None:
@@ -40,3 +45,23 @@ def test_a_failing_writer_leaves_the_old_file_and_no_temporary(tmp_path: Path) -
         atomic_write(path, fail)
     assert path.read_bytes() == b"old" and os.listdir(tmp_path) == ["f"]
     assert remove_stale_temporaries(tmp_path) == 0
+
+
+def test_bytes_written_through_the_descriptor_with_their_identity(tmp_path: Path) -> None:
+    """Written whole (64 MiB, more than one write may take), mode 0644 under umask 077, and
+    the stat returned is the file's as it lies (inode, size, mtime: the rename kept them);
+    data that cannot be written leaves the old file and no temporary."""
+    data = os.urandom(1 << 20) * 64
+    before = os.umask(0o077)
+    try:
+        written = write_bytes_identified(data, tmp_path / "d" / "big.bin")
+    finally:
+        os.umask(before)
+    path = tmp_path / "d" / "big.bin"
+    now = path.stat()
+    assert path.read_bytes() == data and stat.S_IMODE(now.st_mode) == 0o644
+    assert (written.st_ino, written.st_size, written.st_mtime_ns) == (
+        now.st_ino, now.st_size, now.st_mtime_ns)  # fmt: skip
+    with pytest.raises(TypeError):
+        write_bytes_identified("not bytes", path)  # type: ignore[arg-type]
+    assert path.read_bytes() == data and os.listdir(path.parent) == ["big.bin"]

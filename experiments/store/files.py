@@ -17,7 +17,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ttc.atomic import atomic_write, write_bytes_atomic
+from ttc.atomic import write_bytes_atomic, write_bytes_identified
 
 try:
     import fcntl
@@ -75,25 +75,17 @@ def write_parquet_atomic(
 def write_json_atomic(obj: Any, path: Path, indent: int | None = 1) -> None:
     """Write ``obj`` to ``path`` as JSON, atomically (``indent=None``: one line, written
     several times faster: records of batches and plans)."""
-    text = json.dumps(obj, indent=indent, default=str)
-    atomic_write(path, lambda tmp: tmp.write_text(text))
+    write_bytes_atomic(json.dumps(obj, indent=indent, default=str).encode(), path)
 
 
 def write_record(sweep_dir: Path, record: dict[str, Any]) -> IndexEntries:
     """Write a run's record (``runs/<run_id>.json``, one line, atomically); its index entry:
-    the identity of the file written (taken from the temporary file before the rename, which
-    keeps inode, size and mtime: a writer that replaces it after that gives another identity)
-    and the record as the file reads back (a JSON round trip: what a listing would parse)."""
+    the identity of the file written (:func:`ttc.atomic.write_bytes_identified`: taken
+    before the rename) and the record as the file reads back (a JSON round trip: what a
+    listing would parse)."""
     text = json.dumps(record, default=str)
     path = run_paths(sweep_dir, record["run_id"])[1]
-    stats: list[os.stat_result] = []
-
-    def write(tmp: Path) -> None:
-        tmp.write_text(text)
-        stats.append(tmp.stat())
-
-    atomic_write(path, write)
-    st = stats[0]
+    st = write_bytes_identified(text.encode(), path)
     return {path.name: ((st.st_ino, st.st_size, st.st_mtime_ns), json.loads(text))}
 
 
