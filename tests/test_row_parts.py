@@ -18,7 +18,7 @@ from ttc import row_parts
 from ttc.engine import runner
 from ttc.engine.cache import StageCache
 from ttc.io.frames import frame_files
-from ttc.row_parts import KINDS, RowParts
+from ttc.row_parts import KINDS, RowBlock, RowParts
 from ttc.rows import MEMBER
 from ttc.settings import FrameRange
 
@@ -29,9 +29,9 @@ def by_columns(monkeypatch) -> None:
     monkeypatch.setattr(row_parts, "RECORDS_UP_TO", 0)
 
 
-def _row(own: tuple = (0, ""), **parts: int) -> tuple:
-    """A row of the given parts (by kind) and own values."""
-    return (*(parts.get(kind, -1) for kind in KINDS), *own)
+def _row(shared: int = 0, text: str = "", **parts: int) -> RowBlock:
+    """A block of one row of the given parts (by kind), shared matches and error text."""
+    return RowBlock.of([(*(parts.get(kind, -1) for kind in KINDS), shared)], text)
 
 
 def _same_as_records(parts: RowParts, members, make=RowParts.table) -> pd.DataFrame:
@@ -89,7 +89,7 @@ def test_columns_that_kinds_give_with_different_types() -> None:
     members = [
         (4, [_row(pair=pair[0], unmatched=unmatched), _row(pair=pair[1], lidar=lidar,
                                                            camera=camera)]),
-        (2, [_row((3, "broken"), error=error), _row(pair=pair[0], lidar=lidar)]),
+        (2, [_row(3, "broken", error=error), _row(pair=pair[0], lidar=lidar)]),
     ]  # fmt: skip
     table = _same_as_records(parts, members)
     assert table["t"].dtype == np.float64 and table["flag"].dtype == object

@@ -4,8 +4,10 @@ Every row of a batch (:func:`ttc.engine.runner.run_settings`) is the union of a 
 column dicts that many rows share (:data:`KINDS`, built by :mod:`ttc.rows`): a frame pair's
 columns, a box's own lidar points, the box pair, an FP.2 result, an FP.3/FP.4 result, the
 empty result of an unmatched box, the columns of a pair that could not be read. Only
-:data:`OWN_COLUMNS` are a row's own. A row is a :data:`Row` tuple: one part index per kind
-(−1: none), then its own values; its setting (:data:`~ttc.rows.MEMBER`) is given with its rows.
+:data:`OWN_COLUMNS` are a row's own. Rows come in :class:`RowBlock` s (a frame pair's rows
+under one setting, shared by the settings with the same step keys): one part index per kind
+(−1: none) and the box's shared matches per row, one ``error`` text per block; their setting
+(:data:`~ttc.rows.MEMBER`) is given with them.
 
 :meth:`RowParts.table` is exactly ``pandas.DataFrame.from_records`` of the rows as dicts
 (:meth:`RowParts.records`): columns in order of first appearance, each column's dtype inferred
@@ -13,7 +15,7 @@ from its values. Each kind's parts become one small frame (the same inference ov
 distinct values), and a column is taken from those frames by the rows' part indices; a column
 that two kinds give with different dtypes, or that some rows lack, is inferred again from its
 values. Measured on a ``grand`` re-run's batches (160 settings, 20,000 rows): the rows as dicts
-and ``from_records`` were 30 % of a worker's time.
+and ``from_records`` were 30 % of a worker's time; the rows as tuples, transposed, 5 %.
 """
 
 from __future__ import annotations
@@ -32,13 +34,29 @@ from ttc.rows import MEMBER
 KINDS = ("pair", "object", "box", "lidar", "camera", "unmatched", "error")
 #: A row's own columns, after its parts' (``error``: the text of a pair that could not be read).
 OWN_COLUMNS = ("box_shared_matches", "error")
-#: One row: a part index per kind of :data:`KINDS` (−1: none), then :data:`OWN_COLUMNS`.
-Row = tuple[Any, ...]
-#: Rows by setting: ``(member, its rows)``, in the order the table holds them.
-MemberRows = Sequence[tuple[int, Sequence[Row]]]
 #: Up to this many rows the table is made from the rows as dicts: a pair's detail (7 rows)
-#: took 1.5 ms so and 7.6 ms by columns (a small frame per kind and a gather per column).
+#: took 0.44 ms so and 3.0 ms by columns (a small frame per kind and a gather per column).
 RECORDS_UP_TO = 64
+
+
+@dataclass(frozen=True)
+class RowBlock:
+    """Rows with one ``error`` text: ``refs`` (k × :data:`KINDS`, int64) each row's part
+    index per kind (−1: none) and ``shared_matches`` (k,) its ``box_shared_matches``."""
+
+    refs: np.ndarray
+    shared_matches: np.ndarray
+    error: str = ""
+
+    @classmethod
+    def of(cls, rows: Sequence[tuple[int, ...]], error: str = "") -> RowBlock:
+        """The block of ``rows``, each a part index per kind then its shared matches."""
+        table = np.array(rows, dtype=np.int64).reshape(len(rows), len(KINDS) + 1)
+        return cls(table[:, : len(KINDS)], table[:, len(KINDS)], error)
+
+
+#: Rows by setting: ``(member, its blocks)``, in the order the table holds them.
+MemberRows = Sequence[tuple[int, Sequence[RowBlock]]]
 
 
 class RowParts:
@@ -58,33 +76,36 @@ class RowParts:
         """The rows as dicts: each the union of its parts, its own columns and its member (what
         :meth:`table` equals, made by ``pandas.DataFrame.from_records``)."""
         out = []
-        for member, rows in members:
-            for row in rows:
-                record: dict[str, Any] = {}
-                for kind, index in zip(KINDS, row, strict=False):
-                    if index >= 0:
-                        record.update(self._parts[kind][index])
-                record.update(zip(OWN_COLUMNS, row[len(KINDS) :], strict=True))
-                out.append({**record, MEMBER: member})
+        for member, blocks in members:
+            for block in blocks:
+                for refs, shared in zip(block.refs.tolist(), block.shared_matches.tolist(),
+                                        strict=True):  # fmt: skip
+                    record: dict[str, Any] = {}
+                    for kind, index in zip(KINDS, refs, strict=True):
+                        if index >= 0:
+                            record.update(self._parts[kind][index])
+                    record.update(zip(OWN_COLUMNS, (shared, block.error), strict=True))
+                    out.append({**record, MEMBER: member})
         return out
 
     def table(self, members: MemberRows) -> pd.DataFrame:
         """One frame of the rows (:meth:`records`' ``from_records``, made by columns); raises
         ValueError when a row's parts share a column or a kind's parts differ in columns."""
-        n = sum(len(rows) for _, rows in members)
+        blocks = [(member, block) for member, mine in members for block in mine]
+        lengths = [len(block.refs) for _, block in blocks]
+        n = sum(lengths)
         if n <= RECORDS_UP_TO:
             return pd.DataFrame.from_records(self.records(members)) if n else pd.DataFrame()
-        fields = list(zip(*(row for _, rows in members for row in rows), strict=True))
-        refs = np.array(fields[: len(KINDS)], dtype=np.int64)  # kinds × rows
+        refs = np.concatenate([block.refs for _, block in blocks]).T  # kinds × rows
         kinds = [self._kind(kind, refs[i]) for i, kind in enumerate(KINDS)]
-        columns: dict[str, ExtensionArray] = {}
+        at = np.repeat(np.arange(len(blocks)), lengths)  # each row's block
+        own = {"error": [block.error for _, block in blocks], MEMBER: [m for m, _ in blocks]}
+        columns: dict[str, ExtensionArray | np.ndarray] = {}
         for name in _column_order(kinds, refs):
-            if name == MEMBER:
-                lengths = [len(rows) for _, rows in members]
-                at = np.repeat(np.arange(len(lengths)), lengths)
-                columns[name] = _distinct_inferred([m for m, _ in members]).take(at)
-            elif name in OWN_COLUMNS:
-                columns[name] = _distinct_inferred(fields[len(KINDS) + OWN_COLUMNS.index(name)])
+            if name == "box_shared_matches":  # ints within int64 (a block holds them so)
+                columns[name] = np.concatenate([block.shared_matches for _, block in blocks])
+            elif name in own:
+                columns[name] = _distinct_inferred(own[name]).take(at)
             else:
                 columns[name] = _gathered(name, kinds, refs)
         return pd.DataFrame(columns)

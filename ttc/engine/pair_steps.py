@@ -20,7 +20,7 @@ from ttc.engine.cache import Arrays, Lookup, StageCache
 from ttc.features.keypoints import X, Y
 from ttc.features.matching import current_keypoints, pair_matches
 from ttc.io.calibration import Calibration
-from ttc.row_parts import Row, RowParts
+from ttc.row_parts import RowBlock, RowParts
 from ttc.rows import (
     box_columns,
     camera_columns,
@@ -116,9 +116,9 @@ class PairSteps:
         self.assoc: tuple | None = None
         self._projection: bytes | None = None
 
-    def rows(self, s: Settings, k: dict[str, str], detail: dict | None = None) -> list[Row]:
+    def rows(self, s: Settings, k: dict[str, str], detail: dict | None = None) -> RowBlock:
         """The rows of this pair under setting ``s`` (step keys ``k``), lead box first (the
-        same list for the settings with the same step keys). ``detail``, when given, receives
+        same block for the settings with the same step keys). ``detail``, when given, receives
         the intermediate arrays (see :class:`~ttc.rows.PairDetail`)."""
         key = tuple(k.values())
         if detail is None and key in self.memo["rows"]:
@@ -136,14 +136,14 @@ class PairSteps:
             if prev_box >= 0:
                 lidar = self._fp2(s, k, owners, objects, prev_box, curr_box, lead_box)
                 camera = self._fp34(s, k, selected, curr_box, detail, curr_box == lead_box)
-                rows.append((base, obj, box, lidar, camera, -1, -1, shared.get(curr_box, 0), ""))
+                rows.append((base, obj, box, lidar, camera, -1, -1, shared.get(curr_box, 0)))
             else:
-                rows.append((base, obj, box, -1, -1, unmatched, -1, 0, ""))
+                rows.append((base, obj, box, -1, -1, unmatched, -1, 0))
         if detail is not None:
             detail.update(matches=selected, box_matches=box_matches, uv=uv, owners=owners,
                           lead_box=lead_box, objects=objects)  # fmt: skip
-        self.memo["rows"][key] = rows
-        return rows
+        self.memo["rows"][key] = block = RowBlock.of(rows)
+        return block
 
     def _box_pairs(
         self, k: dict[str, str], box_matches: Any, lead_box: int

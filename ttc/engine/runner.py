@@ -51,7 +51,7 @@ from ttc.io.frames import (
     timestamps_file,
     with_truth,
 )
-from ttc.row_parts import MemberRows, RowParts
+from ttc.row_parts import MemberRows, RowBlock, RowParts
 from ttc.rows import MEMBER, PairDetail, error_columns
 from ttc.settings import FrameRange, Settings, axes_with_role
 from ttc.steps.fusion import FUSION_INPUTS, fused_columns
@@ -228,7 +228,7 @@ def pair_detail(
     parts = RowParts()
     shared = PairSteps(pair, calib, dt, prev, curr, per_frame, matches[(prev, curr)], parts)
     detail: dict[str, Any] = {}
-    rows = parts.table([(0, shared.rows(settings, member_keys(settings), detail))])
+    rows = parts.table([(0, [shared.rows(settings, member_keys(settings), detail)])])
     empty = np.zeros(0, dtype=np.int64)
     return PairDetail(
         prev=prev,
@@ -279,8 +279,8 @@ def _group_rows(
     parts: RowParts,
     failed: dict[int, Exception],
 ) -> list[tuple[int, list]]:
-    """Rows of the members of one upstream group: ``[(member, rows)]`` (their parts kept in
-    ``parts``)."""
+    """Rows of the members of one upstream group: ``[(member, row blocks)]`` (their parts
+    kept in ``parts``)."""
     out: dict[int, list] = {m: [] for m in members}
     keys = {m: member_keys(settings[m]) for m in members}
     first = settings[members[0]]
@@ -291,10 +291,10 @@ def _group_rows(
                 dt = pair_interval(times, prev, curr, frames.step)
                 if (prev, curr) not in matches:
                     error = broken.get(curr) or broken[prev]
-                    row = (-1,) * 6 + (parts.add("error", error_columns(prev, curr, dt)), 0,
-                                       str(error))  # fmt: skip
+                    index = parts.add("error", error_columns(prev, curr, dt))
+                    block = RowBlock.of([(-1,) * 6 + (index, 0)], str(error))
                     for m in members:
-                        out[m].append(row)
+                        out[m].append(block)
                     continue
                 for done in [i for i in frame_lidar if i != prev]:
                     del frame_lidar[done]
@@ -304,7 +304,7 @@ def _group_rows(
                     if m in failed:
                         continue
                     try:
-                        out[m].extend(shared.rows(settings[m], keys[m]))
+                        out[m].append(shared.rows(settings[m], keys[m]))
                     except Exception as exc:  # a setting that raises costs only itself
                         failed[m] = exc
     except Exception as exc:  # the group's stages raised: every member fails with it
