@@ -226,3 +226,26 @@ def test_ratio_statistics_share_their_pair_ratios(
         pd.testing.assert_frame_equal(mine.reset_index(drop=True), expected)
     assert (rows.loc[rows[MEMBER] == 0, "ttc_camera"].to_numpy()
             != rows.loc[rows[MEMBER] == 1, "ttc_camera"].to_numpy()).any()  # fmt: skip
+
+
+def test_members_with_the_same_box_pairs_share_their_chained_tracks(
+    kitti_dir: Path, cache: StageCache, monkeypatch
+) -> None:
+    """Tracks are chained once per distinct sequence of box pairs: settings that differ only
+    downstream of FP.1 (lidar estimator, fusion) share one chaining; each keeps the track ids
+    it has alone."""
+    from ttc.engine import runner
+
+    calls, real = [], runner.chain_tracks
+    monkeypatch.setattr(runner, "chain_tracks", lambda *a: calls.append(a) or real(*a))
+    overrides = [[], ["lidar_ttc=cluster"], ["fusion=kalman_ca"], ["box_matching=greedy_matrix"],
+                 ["selector=knn"]]  # fmt: skip
+    settings = [settings_from_config(composed(o)) for o in overrides]
+    frames = FrameRange(kitti_dir, 0, 6)
+    rows, failed = run_settings(settings, frames, cache)
+    pairs = ["prev_frame", "frame", "prev_box", "curr_box"]
+    distinct = {rows.loc[rows[MEMBER] == m, pairs].to_numpy().tobytes() for m in range(5)}
+    assert not failed and len(calls) == len(distinct) < len(settings)
+    for member, s in enumerate(settings):
+        mine = rows.loc[rows[MEMBER] == member, "track_id"].to_numpy()
+        np.testing.assert_array_equal(mine, run_setting(s, frames, cache)["track_id"].to_numpy())
