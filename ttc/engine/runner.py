@@ -140,16 +140,18 @@ def finish_rows(
     tracks: dict[tuple[bytes, ...], np.ndarray] = {}  # by box pairs: shared by most members
     kept, added = np.ones(len(rows), dtype=bool), []
     for member, where in at.items():  # the members' rows, one block after the other
+        block = slice(int(where[0]), int(where[-1]) + 1)  # = where: a view, not a take
+        assert block.stop - block.start == len(where), "a member's rows are together"
         try:
-            fused = fused_columns(inputs.iloc[where], settings[member].fusion)
-            pairs = [c[where] for c in boxes]
+            fused = fused_columns(inputs.iloc[block], settings[member].fusion)
+            pairs = [c[block] for c in boxes]
             key = tuple(c.tobytes() for c in pairs)
             if key not in tracks:
                 tracks[key] = chain_tracks(*pairs)
             added.append({**fused, TRACK_ID: tracks[key]})
         except Exception as exc:  # a setting that raises costs only itself
             failed[member] = exc
-            kept[where] = False
+            kept[block] = False
     if not added:
         return pd.DataFrame()
     columns = {name: np.concatenate([a[name] for a in added]) for name in added[0]}
