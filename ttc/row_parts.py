@@ -54,6 +54,13 @@ class RowBlock:
         table = np.array(rows, dtype=np.int64).reshape(len(rows), len(KINDS) + 1)
         return cls(table[:, : len(KINDS)], table[:, len(KINDS)], error)
 
+    @classmethod
+    def unreadable(cls, part: int, error: str) -> RowBlock:
+        """The one row of a frame pair that could not be read: its ``error`` part, the text."""
+        refs = np.full((1, len(KINDS)), -1, dtype=np.int64)
+        refs[0, KINDS.index("error")] = part
+        return cls(refs, np.zeros(1, dtype=np.int64), error)
+
 
 #: Rows by setting: ``(member, its blocks)``, in the order the table holds them.
 MemberRows = Sequence[tuple[int, Sequence[RowBlock]]]

@@ -14,7 +14,7 @@ lidar association  boxes, points, shrink: a frame once per process (its runs)
 FP.1               selector, box matching
 FP.2               box pair, lidar estimator (once per process)
 FP.3               selector, box, box-matching shrink, keypoint filter
-FP.4 pair ratios   the FP.3 result, the ratios' source and least pair distance
+FP.4 pair ratios   the FP.3 result, the ratios' source, the least pair distance
 FP.4               the FP.3 result, camera estimator
 =================  ==========================================================
 
@@ -300,8 +300,8 @@ def _group_rows(
                 dt = pair_interval(times, prev, curr, frames.step)
                 if (prev, curr) not in matches:
                     error = broken.get(curr) or broken[prev]
-                    index = parts.add("error", error_columns(prev, curr, dt))
-                    block = RowBlock.of([(-1,) * 6 + (index, 0)], str(error))
+                    part = parts.add("error", error_columns(prev, curr, dt))
+                    block = RowBlock.unreadable(part, str(error))
                     for m in members:
                         out[m].append(block)
                     continue

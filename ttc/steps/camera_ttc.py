@@ -125,6 +125,12 @@ RATIO_SOURCES: dict[str, Callable[[np.ndarray, np.ndarray, float], np.ndarray]] 
 }
 
 
+def _ratios_of(params: CameraTTCParams) -> Callable[[np.ndarray, np.ndarray, float], np.ndarray]:
+    """The function making the pair ratios of ``params``' ratio statistic (its
+    :data:`RATIO_SOURCES` entry, else :func:`distance_ratios`)."""
+    return RATIO_SOURCES.get(params.name, distance_ratios)
+
+
 def ratio_source(params: CameraTTCParams, box_width: float) -> tuple[str, float] | None:
     """What the pair ratios of ``params``' estimator depend on besides the points: (the
     ratios' source, the least pair distance in px for a box ``box_width`` px wide); None for
@@ -132,7 +138,7 @@ def ratio_source(params: CameraTTCParams, box_width: float) -> tuple[str, float]
     sources (``median_ratio`` and ``mean_ratio`` at one ``min_dist``) reduce the same ratios."""
     if params.name in POINT_ESTIMATORS:
         return None
-    return RATIO_SOURCES.get(params.name, distance_ratios).__name__, params.threshold(box_width)
+    return _ratios_of(params).__name__, params.threshold(box_width)
 
 
 def pair_ratios(
@@ -140,7 +146,7 @@ def pair_ratios(
 ) -> np.ndarray:
     """The pair ratios (P,) that ``params``' ratio statistic reduces, of the kept matches'
     keypoints (K × 2 pixels, row k ↔ row k) in a box ``box_width`` pixels wide."""
-    source = RATIO_SOURCES.get(params.name, distance_ratios)
+    source = _ratios_of(params)
     prev_xy = np.asarray(prev_xy, dtype=np.float64).reshape(-1, 2)
     curr_xy = np.asarray(curr_xy, dtype=np.float64).reshape(-1, 2)
     return source(prev_xy, curr_xy, params.threshold(box_width))
@@ -164,9 +170,10 @@ def camera_ttc(
 
     ``dt``: seconds between the frames; ``box_width``: the current box's width (pixels), for
     :meth:`CameraTTCParams.threshold`; ``ratios``: these points' :func:`pair_ratios` for
-    ``params`` when made already (shared by the estimators of one :func:`ratio_source`). Degenerate cases return NaN (no matches, no usable
-    pair) or +inf (ratio exactly 1, or a shrinking image: receding) with a reason code; only
-    a non-positive ``dt`` or mismatched shapes raise (caller errors).
+    ``params`` when made already (shared by the estimators of one :func:`ratio_source`).
+    Degenerate cases return NaN (no matches, no usable pair) or +inf (ratio exactly 1, or a
+    shrinking image: receding) with a reason code; only a non-positive ``dt`` or mismatched
+    shapes raise (caller errors).
     """
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt}")
