@@ -29,10 +29,8 @@ def fresh_process(monkeypatch) -> list[int]:
     """An empty table of flattened configs; the list grows by one per config parsed."""
     monkeypatch.setattr(flat_configs, "_FLAT_CONFIGS", [])
     parsed: list[int] = []
-    real = flat_configs._flat
-    monkeypatch.setattr(flat_configs, "_flat",
-                        lambda tree, prefix="": (parsed.append(1) if not prefix else None)
-                        or real(tree, prefix))  # fmt: skip
+    real = flat_configs._flat_text
+    monkeypatch.setattr(flat_configs, "_flat_text", lambda text: parsed.append(1) or real(text))
     return parsed
 
 
@@ -110,3 +108,73 @@ def test_leaves_met_before_keep_their_own_text() -> None:
         flat = flat_configs._flat(json.loads(json.dumps(config)))
         expected = {f"g.k{i}": json.dumps(v, sort_keys=True) for i, v in enumerate(values)}
         assert flat == {**expected, "top": json.dumps(config["top"], sort_keys=True)}
+
+
+def _whole(text: str) -> dict[str, str]:
+    """The definition: the text parsed whole, then flattened."""
+    return flat_configs._flat(json.loads(text))
+
+
+@pytest.mark.parametrize(
+    "texts",
+    [
+        # the previous config's next key inside an entry: the cut is no JSON value
+        ['{"a": {"x": 1}, "b": 2}', '{"a": {"x": 0, "b": 1}, "b": 3}', '{"a": {"x": 1}, "b": 2}'],
+        # ... inside a string (escaped), and a key the previous config lacks
+        ['{"a": 1, "b": 2}', '{"a": "q, \\"b\\": 1", "b": 2}', '{"a": 1, "z": [1, {}], "b": 2}'],
+        # fewer keys, more keys, no keys, other spacing, the same key twice
+        [
+            '{"a": 1, "b": 2}',
+            '{"b": 2}',
+            '{"a": 1, "b": 2, "c": null}',
+            "{}",
+            '{"a":1,"b":2}',
+            '{\n  "a": 1,\n  "b": 2\n}',
+            '{"a": 1, "a": 2, "b": 3}',
+            '{"a": 1, "b": 2}',
+        ],
+        # one entry's text with other types: each keeps its own leaves (1, 1.0, true, NaN)
+        [
+            '{"a": {"v": 1}, "b": 0}',
+            '{"a": {"v": 1.0}, "b": 0}',
+            '{"a": {"v": true}, "b": 0}',
+            '{"a": {"v": NaN}, "b": -0.0}',
+            '{"a": {"v": 1}, "b": 0}',
+            '{"a": {}, "b": [1, 2.5]}',
+        ],
+        # keys JSON escapes are never cut at
+        ['{"a\\"b": 1, "c": 2}', '{"a\\"b": 1, "c": 2}', '{"\\u00e9": {"x": 1}, "c": 2}'],
+    ],
+)
+def test_configs_cut_by_entry_flatten_as_parsed_whole(texts: list[str], monkeypatch) -> None:
+    """Each text flattened by its entries' texts (:func:`flat_configs._flat_text`) gives the
+    leaves of the text parsed whole, in the same order, whatever the config before it."""
+    monkeypatch.setattr(flat_configs, "_SECTIONS", {})
+    monkeypatch.setattr(flat_configs, "_LAST_KEYS", [()])
+    for text in texts:
+        got = flat_configs._flat_text(text)
+        assert list(got.items()) == list(_whole(text).items()), text
+
+
+def test_a_config_cut_by_entry_reuses_each_entry_and_fails_as_json_does(monkeypatch) -> None:
+    """A sweep's configs share their entries: each distinct entry is parsed once; a text that
+    is no JSON object raises as :func:`json.loads` does, whatever the config before it."""
+    monkeypatch.setattr(flat_configs, "_SECTIONS", {})
+    monkeypatch.setattr(flat_configs, "_LAST_KEYS", [()])
+    texts = _configs(40)
+    for text in texts:
+        assert flat_configs._flat_text(text) == _whole(text)
+    # the first config parsed whole; then each distinct entry once: dataset 3 texts,
+    # detector 39 (its first never again), extra {} and 19 lists (of even i > 0)
+    assert len(flat_configs._SECTIONS) == 3 + 39 + 1 + 19
+    bad = [
+        '{"dataset": {"last": 18, "sequence": "drive_0"}, "detector": {',
+        "",
+        "[1, 2]",
+        '{"dataset": {"last": 18, "sequence": "drive_0"}, "detector": {}, "extra": {}',
+    ]
+    for text in bad:
+        with pytest.raises(Exception) as whole:
+            _whole(text)
+        with pytest.raises(whole.type):
+            flat_configs._flat_text(text)
