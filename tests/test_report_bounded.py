@@ -203,3 +203,40 @@ def test_categories_sorted_when_parts_list_them_in_another_order() -> None:
     frames = [pd.DataFrame({"detector": pd.Categorical(v, categories=v)}) for v in
               (["sift", "orb"], ["orb", "sift"])]  # fmt: skip
     assert list(stacked(frames)["detector"].cat.categories) == ["orb", "sift"]
+
+
+def test_objects_made_before_the_call_leave_the_collector_only_inside_the_block() -> None:
+    """A report keeps its loaded sweeps out of the garbage collector's passes
+    (:func:`experiments.report.heap.long_lived`): frozen when it says so, collected again
+    after the block; garbage already made is freed, not kept; a caller's own freeze stays."""
+    import gc
+    import weakref
+
+    from experiments.report.heap import long_lived
+
+    if gc.get_freeze_count():
+        pytest.skip("this process holds frozen objects already")
+
+    class Node:
+        pass
+
+    cycle = Node()
+    cycle.me = cycle  # garbage only the collector frees
+    gone = weakref.ref(cycle)
+    del cycle
+    with long_lived() as keep:
+        kept = [[] for _ in range(1000)]
+        assert gc.get_freeze_count() == 0
+        keep()
+        assert gone() is None and gc.get_freeze_count() >= len(kept)
+    assert gc.get_freeze_count() == 0
+    gc.freeze()
+    try:
+        own = gc.get_freeze_count()
+        with long_lived() as keep:
+            more = [[] for _ in range(1000)]
+            keep()  # not frozen (the count only falls, as frozen objects are freed)
+            assert 0 < gc.get_freeze_count() <= own and more
+        assert 0 < gc.get_freeze_count() <= own  # not unfrozen
+    finally:
+        gc.unfreeze()

@@ -361,3 +361,25 @@ def test_the_runs_table_keeps_long_texts_as_the_records_strings(tmp_path) -> Non
     pd.testing.assert_frame_equal(kept[whole.columns].astype({"config": whole["config"].dtype}),
                                   whole)  # fmt: skip
     assert list(kept["run_id"]) == ["a1", "b2", "c3"]
+
+
+def test_a_fragment_read_on_some_columns_keeps_live_rows_and_is_checked_whole(tmp_path) -> None:
+    """The report reads fragments on the columns it needs (decoding only those): the live
+    rows on those columns, as the whole rows give them; a byte changed anywhere in the file
+    is named all the same."""
+    synthetic_sweep(tmp_path)
+    tables, _ = store.scan_sweep(tmp_path, ["ttc_camera", "run_id", "no_such_column"])
+    got = pd.concat([t.to_pandas() for t in tables], ignore_index=True)
+    whole = store.load_sweep(tmp_path)[0][["ttc_camera", "run_id"]]
+    assert list(got.columns) == ["ttc_camera", "run_id"] and len(got) == 12
+    pd.testing.assert_frame_equal(
+        got.sort_values("ttc_camera", ignore_index=True),
+        whole.sort_values("ttc_camera", ignore_index=True),
+    )
+    (bad,) = (tmp_path / store.RUNS_DIR).glob("batch-b-*.parquet")
+    data = bytearray(bad.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    bad.write_bytes(bytes(data))
+    tables, _ = store.scan_sweep(tmp_path, ["ttc_camera"])
+    with pytest.raises(store.StoreError, match=f"{bad.name}: rows file corrupt"):
+        list(tables)

@@ -26,7 +26,7 @@ from experiments.report import (
     reference_report,
     truth_report,
 )
-from experiments.report.heap import release_freed_memory
+from experiments.report.heap import long_lived, release_freed_memory
 from experiments.report.html import html_report
 from experiments.report.load import (
     Context,
@@ -82,58 +82,62 @@ def build_report(
         now = time.perf_counter()
         times[name], last = now - last, now
 
-    data = load_sweeps(sweep_dirs)
-    if data.runs.empty:
-        raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
-    kind = report_kind(data.frames, data.runs)
-    if kind == "truth":  # a generated recording: judged against its exact truth
-        summary = truth_report.truth_report(data, out, list(real or []))
+    with long_lived() as kept:
+        data = load_sweeps(sweep_dirs)
+        kept()  # the sweeps loaded live to the end: out of the collector's passes
+        if data.runs.empty:
+            raise ValueError(f"no runs in {', '.join(map(str, sweep_dirs))}")
+        kind = report_kind(data.frames, data.runs)
+        if kind == "truth":  # a generated recording: judged against its exact truth
+            summary = truth_report.truth_report(data, out, list(real or []))
+            ctx = make_context(data_dir, cache_dir)
+            summary["fp6"] = fp6.fp6_report(data, summary["reference"], ctx, out, pictures,
+                                            against=fp6.AGAINST_TRUTH)  # fmt: skip
+            truth_text = (out / "truth.md").read_text(encoding="utf-8")
+            summary["html"] = html_report(data, summary["reference"], None, summary["fp6"], out,
+                                          truth_text=truth_text) if html else None  # fmt: skip
+            log(f"metrics: {', '.join(map(str, summary['metrics']))}\n"
+                f"reports: {out / 'truth.md'}, {out / 'fp6_camera.md'}")  # fmt: skip
+            if summary["html"] is not None:
+                log(f"HTML report: {summary['html']}")
+            return summary
         ctx = make_context(data_dir, cache_dir)
-        summary["fp6"] = fp6.fp6_report(data, summary["reference"], ctx, out, pictures,
-                                        against=fp6.AGAINST_TRUTH)  # fmt: skip
-        truth_text = (out / "truth.md").read_text(encoding="utf-8")
-        summary["html"] = html_report(data, summary["reference"], None, summary["fp6"], out,
-                                      truth_text=truth_text) if html else None  # fmt: skip
-        log(f"metrics: {', '.join(map(str, summary['metrics']))}\n"
-            f"reports: {out / 'truth.md'}, {out / 'fp6_camera.md'}")  # fmt: skip
-        if summary["html"] is not None:
-            log(f"HTML report: {summary['html']}")
+        out.mkdir(parents=True, exist_ok=True)
+        lap("load")
+        if kind == "drives":
+            return build_drives_report(data, ctx, out, pictures, log, html)
+        reference = reference_for(data, ctx)
+        lap("reference")
+        written = write_sweep_metrics(data, reference)
+        lap("metrics")
+        reference_report.reference_report(data, reference, out)
+        lap("reference report")
+        has_rows = not data.frames.empty
+        fp5_table = fp5.fp5_report(data, reference, ctx, out, pictures) if has_rows else None
+        lap("fp5")
+        fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
+        ctx.drop_details()
+        lap("fp6")
+        fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
+        lap("fp7")
+        if has_rows:
+            objects_report.recording_objects_report(data, ctx, out)
+        lap("objects")
+        index = (
+            html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables) if html else None
+        )
+        lap("html")
+        times["total"] = time.perf_counter() - start
+        summary = {"metrics": written, "out": out, "times": times, "pair_details": ctx.calls,
+                   "fp5": fp5_table, "fp6": fp6_tables, "fp7": fp7_tables,
+                   "html": index}  # fmt: skip
+        log(f"metrics: {', '.join(map(str, written))}")
+        log(f"reports: {out} ({', '.join(sorted(p.name for p in out.glob('*.md')))})")
+        if index is not None:
+            log(f"HTML report: {index}")
+        log("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in times.items())
+            + f"; {ctx.calls} pair details")  # fmt: skip
         return summary
-    ctx = make_context(data_dir, cache_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    lap("load")
-    if kind == "drives":
-        return build_drives_report(data, ctx, out, pictures, log, html)
-    reference = reference_for(data, ctx)
-    lap("reference")
-    written = write_sweep_metrics(data, reference)
-    lap("metrics")
-    reference_report.reference_report(data, reference, out)
-    lap("reference report")
-    has_rows = not data.frames.empty
-    fp5_table = fp5.fp5_report(data, reference, ctx, out, pictures) if has_rows else None
-    lap("fp5")
-    fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
-    ctx.drop_details()
-    lap("fp6")
-    fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
-    lap("fp7")
-    if has_rows:
-        objects_report.recording_objects_report(data, ctx, out)
-    lap("objects")
-    index = html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables) if html else None
-    lap("html")
-    times["total"] = time.perf_counter() - start
-    summary = {"metrics": written, "out": out, "times": times, "pair_details": ctx.calls,
-               "fp5": fp5_table, "fp6": fp6_tables, "fp7": fp7_tables,
-               "html": index}  # fmt: skip
-    log(f"metrics: {', '.join(map(str, written))}")
-    log(f"reports: {out} ({', '.join(sorted(p.name for p in out.glob('*.md')))})")
-    if index is not None:
-        log(f"HTML report: {index}")
-    log("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in times.items())
-        + f"; {ctx.calls} pair details")  # fmt: skip
-    return summary
 
 
 def build_drives_report(

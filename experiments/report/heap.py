@@ -1,10 +1,14 @@
-"""Heap memory a report freed given back to the system between its steps."""
+"""A report's heap: memory freed given back to the system between its steps, and the objects
+that live through the whole report kept out of the cyclic garbage collector's passes."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import functools
+import gc
+from collections.abc import Callable, Iterator
 
 
 @functools.cache
@@ -24,3 +28,25 @@ def release_freed_memory() -> None:
     libc = _libc()
     if libc is not None:
         libc.malloc_trim(0)
+
+
+@contextlib.contextmanager
+def long_lived() -> Iterator[Callable[[], None]]:
+    """A block given a function that moves every object alive when it is called out of the
+    cyclic garbage collector's passes (:func:`gc.freeze`) until the block ends
+    (:func:`gc.unfreeze`: collected as any from then on). A report calls it once its sweeps
+    are loaded: their tables and flattened configs live to its end, and each full collection
+    walked them again (``grand`` 0–18's report: 1.44 → 0.54 s of collections). Nothing is
+    moved when the process holds objects frozen already (its own freeze is left as it is)."""
+    mine = gc.get_freeze_count() == 0
+
+    def freeze() -> None:
+        if mine:
+            gc.collect()  # what is garbage already is freed, not kept to the end
+            gc.freeze()
+
+    try:
+        yield freeze
+    finally:
+        if mine:
+            gc.unfreeze()

@@ -135,7 +135,8 @@ def read_rows(
     (:func:`ttc.evaluation.stage_time_counts`: a few rows per stage, frame and value).
 
     A fragment's rows are picked in Arrow (one take of every column) and only the columns
-    that pick them and the counted ones become pandas; the picked rows become one frame at
+    that pick them become pandas (:func:`key_frame`), the counted ones a few fragments at a
+    time (:data:`TRIM_EVERY`); the picked rows become one frame at
     the end (:func:`as_frame`): the frame pandas gives of the fragments' frames cut and
     stacked, made of 2 Arrow calls a fragment instead of one pandas call per column and
     fragment (``grand`` 0–18: 175 fragments × 66 columns). Memory: what is kept, and one
@@ -144,15 +145,14 @@ def read_rows(
     lead_parts: list[pa.Table] = []
     box_parts: list[pa.Table] = []
     counts: list[ev.StageCounts] = []
-    timed: list[pd.DataFrame] = []  # the time columns of the fragments not counted yet
+    timed: list[pa.Table] = []  # the time columns of the fragments not counted yet
     with_nulls: set[str] = set()
     for table in tables:
         names = table.column_names
         with_nulls.update(n for n, c in zip(names, table.columns, strict=True) if c.null_count)
-        picked = [c for c in dict.fromkeys([*KEY_COLUMNS, *TIME_COLUMNS]) if c in names]
-        keys = table.select(picked).to_pandas()
+        keys = key_frame(table)
         mine = is_in(keys["run_id"], ids)
-        judged = judged_mask(keys[list(KEY_COLUMNS)]) & mine
+        judged = judged_mask(keys) & mine
         boxed = (
             is_in(keys["run_id"], boxed_ids)
             & (keys["prev_box"] >= 0).to_numpy()
@@ -161,16 +161,25 @@ def read_rows(
         )
         lead_parts.append(picked_rows(table, [c for c in read_columns() if c in names], judged))
         box_parts.append(picked_rows(table, [c for c in BOX_COLUMNS if c in names], boxed))
-        timed.append(keys.loc[mine, [c for c in TIME_COLUMNS if c in keys]])
+        timed.append(table.select([c for c in TIME_COLUMNS if c in names]).filter(mine))
         del table, keys
         if len(lead_parts) % TRIM_EVERY == 0:  # the fragments' freed pages back as they go
-            counts.append(ev.stage_time_counts(pd.concat(timed, ignore_index=True)))
+            counts.append(ev.stage_time_counts(pa.concat_tables(timed).to_pandas()))
             timed.clear()
             release_freed_memory()
     if timed:
-        counts.append(ev.stage_time_counts(pd.concat(timed, ignore_index=True)))
+        counts.append(ev.stage_time_counts(pa.concat_tables(timed).to_pandas()))
     lead, boxes = as_frame(lead_parts, with_nulls), as_frame(box_parts, with_nulls)
     return lead, boxes, ev.join_counts(counts)
+
+
+def key_frame(table: pa.Table) -> pd.DataFrame:
+    """The :data:`KEY_COLUMNS` of a fragment's rows as pandas, ``run_id`` a category (a few
+    runs over thousands of rows: matched and grouped by its codes, not as strings)."""
+    keys = table.select([c for c in KEY_COLUMNS if c in table.column_names])
+    at = keys.schema.get_field_index("run_id")
+    keys = keys.set_column(at, "run_id", pc.dictionary_encode(keys.column(at)))
+    return keys.to_pandas()
 
 
 def picked_rows(table: pa.Table, columns: list[str], rows: np.ndarray) -> pa.Table:

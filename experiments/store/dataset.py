@@ -80,7 +80,8 @@ def fragment_table(frag: Fragment, columns: list[str] | None = None) -> pa.Table
     """The checked rows of a fragment's live runs (other runs' rows, superseded by a later
     computation, left out), ``columns`` only when given; :class:`StoreError` names a missing,
     corrupt or inconsistent file."""
-    table = read_checked_table(frag.path, frag.sha256)
+    wanted = None if columns is None else list(dict.fromkeys(["run_id", *columns]))
+    table = read_checked_table(frag.path, frag.sha256, wanted)
     if frag.own:
         if table.num_rows != frag.rows:
             raise StoreError(frag.path, f"{table.num_rows} rows, its record says {frag.rows}")

@@ -172,8 +172,11 @@ def read_checked(path: Path, sha256: str | None) -> pd.DataFrame:
     return read_checked_table(path, sha256).to_pandas()
 
 
-def read_checked_table(path: Path, sha256: str | None) -> pa.Table:
-    """:func:`read_checked` as an Arrow table (as stored: no pandas round trip)."""
+def read_checked_table(
+    path: Path, sha256: str | None, columns: list[str] | None = None
+) -> pa.Table:
+    """:func:`read_checked` as an Arrow table (as stored: no pandas round trip); ``columns``:
+    only those of them the file has decoded (the whole file is checked all the same)."""
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -181,7 +184,11 @@ def read_checked_table(path: Path, sha256: str | None) -> pa.Table:
     if sha256 and hashlib.sha256(data).hexdigest() != sha256:
         raise StoreError(path, "rows file corrupt (SHA-256 differs from its record)")
     try:
-        return pq.read_table(pa.BufferReader(data))
+        if columns is None:
+            return pq.read_table(pa.BufferReader(data))
+        file = pq.ParquetFile(pa.BufferReader(data))
+        stored = set(file.schema_arrow.names)
+        return file.read(columns=[c for c in columns if c in stored])
     except Exception as exc:  # pyarrow raises many types for damaged files
         raise StoreError(path, f"rows file corrupt ({type(exc).__name__}: {exc})") from None
 
