@@ -13,6 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from experiments import progress, store
+from experiments.heap import long_lived
 from experiments.lead_cache import LeadRows
 from experiments.paths import shown
 from experiments.ranking_cache import kept_run_metrics
@@ -129,42 +130,44 @@ def summarise_sweep(
     ranking (it would be the one printed before)."""
     sweep_dir = Path(sweep_dir)
     remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
-    records = store.list_records(sweep_dir)
-    read = [{k: r[k] for k in SUMMARY_FIELDS if k in r} for r in records]
-    runs = store.runs_table(read, texts=("config",))  # configs only parsed: Python strings
-    n_rows = store.row_count(records)
-    folder = progress.progress_dir(sweep_dir)
-    outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None
-    statuses = [] if runs.empty else runs["status"].astype(str).tolist()
-    print("\n".join(summary_head(sweep_dir, n_rows, statuses, outcomes)))
-    for _, run in runs[runs["status"] == "failed"].iterrows() if not runs.empty else []:
-        print(f"  failed {run['run_id']}: {run['message']}")
-    if "n_frame_errors" in runs:
-        for _, run in runs[runs["n_frame_errors"].fillna(0) > 0].iterrows():
-            print(f"  frame errors in {run['run_id']} (retried when the input changes): "
-                  f"{run['message']}")  # fmt: skip
-    if unchanged:
-        print(nothing_computed_line(sweep_dir))
-        return pd.DataFrame()
-    lead = LeadRows(sweep_dir, records) if n_rows else None
-    if lead is None or not lead.keys:
-        return pd.DataFrame()
-    frames = _truth_rows(lead)
-    try:
-        tables = _best(lead, frames, runs, data_dir, cache_dir)
-    except Exception as exc:  # the rows stand; the ranking is the report's job
-        print(f"\n(no ranking: {type(exc).__name__}: {exc})")
-        return pd.DataFrame()
-    if not tables:
-        return pd.DataFrame()
-    with pd.option_context("display.width", 200, "display.max_columns", 20):
-        for n, (scores, title) in zip((top, FUSED_SHOWN), tables, strict=False):
-            print(f"\nbest {n} settings {title}:")
-            print(scores.head(n).to_string(index=False, float_format="%.3g"))
-    name = sweep_dir.name
-    print(f"\nreports ({report_contents(frames, runs)}):\n"
-          f"  python -m experiments.report {shown(sweep_dir)} --out reports/{name}")  # fmt: skip
-    return tables[0][0]
+    with long_lived(collect=False) as keep:
+        records = store.list_records(sweep_dir)
+        keep()  # the records live to the end: out of the collector's passes
+        read = [{k: r[k] for k in SUMMARY_FIELDS if k in r} for r in records]
+        runs = store.runs_table(read, texts=("config",))  # configs only parsed: Python strings
+        n_rows = store.row_count(records)
+        folder = progress.progress_dir(sweep_dir)
+        outcomes = progress.progress_outcomes(folder) if folder.is_dir() else None
+        statuses = [] if runs.empty else runs["status"].astype(str).tolist()
+        print("\n".join(summary_head(sweep_dir, n_rows, statuses, outcomes)))
+        for _, run in runs[runs["status"] == "failed"].iterrows() if not runs.empty else []:
+            print(f"  failed {run['run_id']}: {run['message']}")
+        if "n_frame_errors" in runs:
+            for _, run in runs[runs["n_frame_errors"].fillna(0) > 0].iterrows():
+                print(f"  frame errors in {run['run_id']} (retried when the input changes): "
+                      f"{run['message']}")  # fmt: skip
+        if unchanged:
+            print(nothing_computed_line(sweep_dir))
+            return pd.DataFrame()
+        lead = LeadRows(sweep_dir, records) if n_rows else None
+        if lead is None or not lead.keys:
+            return pd.DataFrame()
+        frames = _truth_rows(lead)
+        try:
+            tables = _best(lead, frames, runs, data_dir, cache_dir)
+        except Exception as exc:  # the rows stand; the ranking is the report's job
+            print(f"\n(no ranking: {type(exc).__name__}: {exc})")
+            return pd.DataFrame()
+        if not tables:
+            return pd.DataFrame()
+        with pd.option_context("display.width", 200, "display.max_columns", 20):
+            for n, (scores, title) in zip((top, FUSED_SHOWN), tables, strict=False):
+                print(f"\nbest {n} settings {title}:")
+                print(scores.head(n).to_string(index=False, float_format="%.3g"))
+        name = sweep_dir.name
+        print(f"\nreports ({report_contents(frames, runs)}):\n"
+              f"  python -m experiments.report {shown(sweep_dir)} --out reports/{name}")  # fmt: skip
+        return tables[0][0]
 
 
 def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:

@@ -383,3 +383,29 @@ def test_a_fragment_read_on_some_columns_keeps_live_rows_and_is_checked_whole(tm
     tables, _ = store.scan_sweep(tmp_path, ["ttc_camera"])
     with pytest.raises(store.StoreError, match=f"{bad.name}: rows file corrupt"):
         list(tables)
+
+
+def test_listing_records_pauses_the_collector_and_restores_it(tmp_path) -> None:
+    """The listing makes a million containers and no garbage: the collector is off meanwhile
+    (no collection runs), and as it was after, on or off, also when the listing fails."""
+    import gc
+
+    from experiments.store import record_index
+
+    synthetic_sweep(tmp_path)
+    collections: list[int] = []
+    callback = lambda phase, info: collections.append(1) if phase == "start" else None  # noqa: E731
+    gc.callbacks.append(callback)
+    try:
+        with record_index.collection_paused():
+            garbage = [[[]] for _ in range(50_000)]  # would set collections off
+            assert not gc.isenabled() and not collections
+        assert gc.isenabled() and garbage
+        assert len(record_index.list_records(tmp_path)) == 6
+        gc.disable()
+        with pytest.raises(OSError), record_index.collection_paused():
+            raise OSError("a listing that fails")
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+        gc.callbacks.remove(callback)

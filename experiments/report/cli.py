@@ -14,6 +14,7 @@ import pyarrow as pa
 
 from experiments import store
 from experiments.data.first_run import fail
+from experiments.heap import long_lived, release_freed_memory
 from experiments.provenance import code_version
 from experiments.recordings import report_kind
 from experiments.report import (
@@ -26,7 +27,6 @@ from experiments.report import (
     reference_report,
     truth_report,
 )
-from experiments.report.heap import long_lived, release_freed_memory
 from experiments.report.html import html_report
 from experiments.report.load import (
     Context,

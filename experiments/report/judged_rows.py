@@ -16,9 +16,9 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from experiments.heap import release_freed_memory
 from experiments.identity import with_neutral_axes
 from experiments.recordings import run_ids_by_recording, setting_of
-from experiments.report.heap import release_freed_memory
 from experiments.tools.schema import FRAME_COLUMNS
 from ttc import evaluation as ev
 from ttc.evaluation.errors import is_in
@@ -53,7 +53,7 @@ UNREAD_COLUMNS: tuple[str, ...] = (
     "lidar_outliers_prev", "lidar_outliers_curr",
 )  # fmt: skip
 #: Fragments read (:func:`read_rows`) between two
-#: :func:`~experiments.report.heap.release_freed_memory` calls (``grand`` 0–18: 175
+#: :func:`~experiments.heap.release_freed_memory` calls (``grand`` 0–18: 175
 #: fragments; its load step peaked 0.28 GB higher without them, and a call after every
 #: fragment costs ≈ 25 ms of system time each); their stage times are counted together
 #: (a count per fragment: 1.2 s of small tables for ``grand``'s 175).

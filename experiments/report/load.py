@@ -24,10 +24,10 @@ from experiments.config import (
 )
 from experiments.data.first_run import ensure_model_files
 from experiments.flat_configs import flatten_kept
+from experiments.heap import release_freed_memory
 from experiments.paths import default_cache_dir, default_data_root, resolve
 from experiments.reference_store import recording_references, sequence_of
 from experiments.report import judged_rows
-from experiments.report.heap import release_freed_memory
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail

@@ -1,5 +1,6 @@
-"""A report's heap: memory freed given back to the system between its steps, and the objects
-that live through the whole report kept out of the cyclic garbage collector's passes."""
+"""A process's heap: memory freed given back to the system between a report's steps, and the
+objects that live through a whole report or summary kept out of the cyclic garbage
+collector's passes."""
 
 from __future__ import annotations
 
@@ -31,22 +32,27 @@ def release_freed_memory() -> None:
 
 
 @contextlib.contextmanager
-def long_lived() -> Iterator[Callable[[], None]]:
+def long_lived(collect: bool = True) -> Iterator[Callable[[], None]]:
     """A block given a function that moves every object alive when it is called out of the
     cyclic garbage collector's passes (:func:`gc.freeze`) until the block ends
     (:func:`gc.unfreeze`: collected as any from then on). A report calls it once its sweeps
-    are loaded: their tables and flattened configs live to its end, and each full collection
-    walked them again (``grand`` 0–18's report: 1.44 → 0.54 s of collections). Nothing is
-    moved when the process holds objects frozen already (its own freeze is left as it is)."""
-    mine = gc.get_freeze_count() == 0
+    are loaded, a sweep's summary once its records are listed: they live to the end, and each
+    full collection walked them again (``grand`` 0–18's report: 1.44 → 0.54 s of
+    collections; its summary: 0.1 s a collection). ``collect``: garbage made before the call
+    freed first (a full collection), else kept with the rest until the block ends. When the
+    process held frozen objects before the block (the warm server's preloaded stack, frozen
+    in every command it forks), what the block froze stays frozen after it: the two cannot be
+    told apart (objects no longer used are freed by their reference counts all the same; only
+    garbage in reference cycles waits)."""
+    owned = gc.get_freeze_count() == 0
 
     def freeze() -> None:
-        if mine:
-            gc.collect()  # what is garbage already is freed, not kept to the end
-            gc.freeze()
+        if collect:
+            gc.collect()
+        gc.freeze()
 
     try:
         yield freeze
     finally:
-        if mine:
+        if owned:
             gc.unfreeze()
