@@ -256,3 +256,19 @@ def test_lead_box_holds_most_lane_points() -> None:
     assert ev.lead_box_of(np.array([-1, 2, 2, 0, 2, 0]), 3) == 2
     assert ev.lead_box_of(np.array([-1, -1]), 3) == -1
     assert ev.lead_box_of(np.empty(0, np.int64), 0) == -1
+
+
+@pytest.mark.parametrize("dtype", ["str", object, "category"])
+def test_the_text_before_a_separator_is_pandas_split_each_distinct_text_once(dtype) -> None:
+    """:func:`ttc.evaluation.diagnosis.text_before` gives ``.str.split(sep).str[0]``: the same
+    values (missing ones as pandas leaves them), object dtype, the index kept."""
+    from ttc.evaluation.diagnosis import text_before
+
+    values = ["a;b", "c", None, "", "x;y;z", "c", "a;b", ";lead"]
+    texts = pd.Series(values, dtype=dtype, index=[f"r{i}" for i in range(len(values))])
+    want = texts.astype(object if dtype == "category" else dtype).str.split(";").str[0]
+    pd.testing.assert_series_equal(text_before(texts, ";"), want)
+    mixed = pd.Series([1.5, "k:v", None, "k"], dtype=object)
+    pd.testing.assert_series_equal(text_before(mixed, ":"), mixed.str.split(":").str[0])
+    empty = pd.Series([], dtype="str")
+    pd.testing.assert_series_equal(text_before(empty, ";"), empty.str.split(";").str[0])

@@ -261,3 +261,22 @@ def test_the_all_object_ranking_takes_tracks_as_bootstrap_blocks() -> None:
     assert out["setting"].tolist() == ["a", "b"]
     assert out["score"].tolist() == pytest.approx([0.1, 2.5 / 6])
     assert out.loc[0, ["rank", "rank_lo", "rank_hi"]].tolist() == [1, 1, 1]
+
+
+def test_bootstrap_ranks_are_pandas_min_ranks() -> None:
+    """:func:`ttc.evaluation.object_errors.min_ranks` ranks each replicate as pandas does
+    (``method="min"``): ties (0.0 and -0.0 among them) share their least rank, settings a
+    replicate did not draw (+inf) rank last together, NaN stays NaN."""
+    from ttc.evaluation.object_errors import min_ranks
+
+    rng = np.random.default_rng(0)
+    scores = rng.integers(0, 30, (200, 60)).astype(float)
+    scores[scores > 26] = np.inf
+    scores[scores == 3] = -0.0
+    scores[scores == 4] = 0.0
+    want = pd.DataFrame(scores).rank(axis=1, method="min").to_numpy()
+    assert np.array_equal(min_ranks(scores), want)
+    assert min_ranks(np.zeros((0, 5))).shape == (0, 5)
+    scores[1, 2] = np.nan
+    want = pd.DataFrame(scores).rank(axis=1, method="min").to_numpy()
+    assert np.array_equal(min_ranks(scores), want, equal_nan=True)

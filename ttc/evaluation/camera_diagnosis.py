@@ -23,6 +23,7 @@ from ttc.evaluation.diagnosis import (
     fmt,
     judged_rows,
     setting_labels,
+    text_before,
     with_reasons,
 )
 from ttc.evaluation.errors import rows_of_runs
@@ -251,7 +252,7 @@ def worst_order(t: pd.DataFrame, per_pair: int = PER_PAIR, turns: str = "primary
     keys = ["camera_rel_err", "reasons", "setting", "frame", "dataset", "detector", "descriptor"]
     w = t.loc[way, [c for c in dict.fromkeys([*keys, turns]) if c in t]]  # ordered on these
     w["severity"] = w["camera_rel_err"].fillna(np.inf)
-    w["primary"] = w["reasons"].str.split(";").str[0]
+    w["primary"] = text_before(w["reasons"], ";")
     w = w.sort_values(["severity", "setting", "frame"], ascending=[0, 1, 1])
     w = w[w.groupby(["dataset", "detector", "descriptor"]).cumcount() < per_pair]
     w["turn"] = w.groupby(turns).cumcount()

@@ -42,6 +42,20 @@ def code_texts(codes: pd.Series) -> pd.Series:
     return described.where(~codes.isin(["", reasons.OK]), "")
 
 
+def text_before(texts: pd.Series, sep: str) -> pd.Series:
+    """Each text's part before its first ``sep`` (all of it without one), object dtype by
+    ``texts``' index, missing and non-text values NaN (missing values of an object column as
+    they are): ``texts.str.split(sep).str[0]``, each distinct text split once (a sweep's
+    reason codes repeat a few dozen texts over 10⁵ rows; pandas splits every row)."""
+    values = texts.to_numpy(dtype=object, copy=True)
+    codes, distinct = pd.factorize(texts, use_na_sentinel=True)
+    heads = np.array([t.split(sep, 1)[0] if isinstance(t, str) else np.nan for t in distinct] or [""],
+                     dtype=object)  # fmt: skip
+    found = codes >= 0
+    values[found] = heads[codes[found]]
+    return pd.Series(values, index=texts.index, dtype=object)
+
+
 def combine_reasons(parts: dict[str, pd.Series], index: pd.Index) -> pd.DataFrame:
     """``reasons`` (codes joined by ';') and ``reason_text`` from per-rule texts ('' = no).
 
@@ -61,7 +75,7 @@ def combine_reasons(parts: dict[str, pd.Series], index: pd.Index) -> pd.DataFram
         return pd.DataFrame({"reasons": "", "reason_text": ""}, index=index)
     texts = pd.DataFrame(parts, index=index).fillna("").astype(str)
     fired = texts.ne("")
-    names = {c: texts[c].str.split(":").str[0] if c == "code" else c for c in texts.columns}
+    names = {c: text_before(texts[c], ":") if c == "code" else c for c in texts.columns}
     codes = functools.reduce(
         lambda a, b: a + b, [np.where(fired[c], names[c] + ";", "") for c in texts.columns]
     )
