@@ -59,3 +59,19 @@ def test_counting_in_parts_gives_the_times_of_counting_at_once() -> None:
     # B's cached frames 1, 2 take A's times there; C (orb) loaded everything: its load time
     assert whole[rows["run_id"] == "B"].tolist() == [5.0, 5.0, 7.0, 7.0, 1.5, 1.5]
     assert whole[rows["run_id"] == "C"].tolist() == [1.2] * 6
+
+
+def test_times_looked_up_for_rows_whose_axes_are_categories_are_those_of_strings() -> None:
+    """The report's judged rows hold their axes as categories (other categories, another
+    order than the counts'): the times looked up are those of the same rows as strings."""
+    a = pd.DataFrame(stage_rows("A", "fast", [4.0, 6.0, 8.0], [False, False, False]))
+    b = pd.DataFrame(stage_rows("B", "fast", [0.5, 0.5, 0.5], [True, True, False]))
+    c = pd.DataFrame(stage_rows("C", "orb", [0.2, 0.2, 0.2], [True, True, True]))
+    rows = pd.concat([a, b, c], ignore_index=True)
+    counts = ev.stage_time_counts(rows)
+    as_text = ev.compute_times(rows, counts)
+    coded = rows.assign(
+        detector=pd.Categorical(rows["detector"], categories=["sift", "orb", "fast"])
+    )
+    pd.testing.assert_series_equal(ev.compute_times(coded, counts), as_text)
+    assert as_text[rows["run_id"] == "B"].tolist() == [5.0, 5.0, 7.0, 7.0, 1.5, 1.5]
