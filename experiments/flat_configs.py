@@ -21,6 +21,7 @@ import sys
 from json.encoder import encode_basestring_ascii
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 
@@ -168,7 +169,10 @@ def config_table(configs: pd.Series) -> pd.DataFrame:
             new = list(dict.fromkeys(t for t in texts if t is not None))
         _add(new, pd.DataFrame([_flat_text(t) for t in new], dtype=object))
     rows, table = _FLAT_CONFIGS[0] if _FLAT_CONFIGS else ({}, pd.DataFrame())
-    at = [rows[hash(t)] if t is not None else -1 for t in texts]
+    at = np.array([rows[hash(t)] if t is not None else -1 for t in texts], dtype=np.int64)
+    if np.array_equal(at, np.arange(len(table))):  # the whole table, in order (a report's
+        # configs, each a run's): every column has a leaf in some row; not copied
+        return table.set_axis(configs.index)
     found = table.reindex(at).set_axis(configs.index)  # a missing config (-1): NaN
     return found.dropna(axis=1, how="all")
 

@@ -178,3 +178,15 @@ def test_a_config_cut_by_entry_reuses_each_entry_and_fails_as_json_does(monkeypa
             _whole(text)
         with pytest.raises(whole.type):
             flat_configs._flat_text(text)
+
+
+def test_every_config_in_order_is_the_table_any_order_gives(fresh_process) -> None:
+    """A report asks for all its runs' configs in the order they were flattened: the table is
+    then handed out without a copy, the same table a reordering of them gives."""
+    configs = _configs(12)
+    whole = config_table(configs)
+    again = config_table(configs)
+    reordered = config_table(configs.iloc[::-1])
+    pd.testing.assert_frame_equal(again, whole)
+    pd.testing.assert_frame_equal(reordered.loc[configs.index], whole)
+    assert len(fresh_process) == 12 and not whole.isna().all().any()
