@@ -390,6 +390,7 @@ def test_listing_records_pauses_the_collector_and_restores_it(tmp_path) -> None:
     (no collection runs), and as it was after, on or off, also when the listing fails."""
     import gc
 
+    from experiments.heap import collection_paused
     from experiments.store import record_index
 
     synthetic_sweep(tmp_path)
@@ -397,13 +398,13 @@ def test_listing_records_pauses_the_collector_and_restores_it(tmp_path) -> None:
     callback = lambda phase, info: collections.append(1) if phase == "start" else None  # noqa: E731
     gc.callbacks.append(callback)
     try:
-        with record_index.collection_paused():
+        with collection_paused():
             garbage = [[[]] for _ in range(50_000)]  # would set collections off
             assert not gc.isenabled() and not collections
         assert gc.isenabled() and garbage
         assert len(record_index.list_records(tmp_path)) == 6
         gc.disable()
-        with pytest.raises(OSError), record_index.collection_paused():
+        with pytest.raises(OSError), collection_paused():
             raise OSError("a listing that fails")
         assert not gc.isenabled()
     finally:

@@ -17,15 +17,13 @@ data: its pickles, like ``.plan/``'s, are trusted.)
 
 from __future__ import annotations
 
-import contextlib
-import gc
 import json
 import os
 import pickle
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from experiments.heap import collection_paused
 from experiments.store.files import INDEX_DIR, RUNS_DIR, Identity, keep_index, write_index
 
 #: A listing writes an index file when it read at least this many records from their files.
@@ -38,20 +36,6 @@ def _mtime(path: Path) -> int:
         return path.stat().st_mtime_ns
     except OSError:
         return 0
-
-
-@contextlib.contextmanager
-def collection_paused() -> Iterator[None]:
-    """The cyclic garbage collector off in the block (as it was after): listing 40,320
-    records makes a million containers and no garbage, and the collections their count set
-    off walked every object of the process (full ones: 0.1 s each in a ``grand`` summary)."""
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            gc.enable()
 
 
 def _load_index(sweep_dir: Path, wanted: dict[str, Identity]) -> dict[str, dict[str, Any]]:
@@ -78,7 +62,7 @@ def list_with_identities(sweep_dir: Path) -> dict[str, tuple[Identity, dict[str,
     """``{file name: (identity, record)}`` of every readable record, by file name; writes an
     index file of those read from their files when they are :data:`WRITE_AT_LEAST` or more
     (nothing when the folder is read-only). The collector paused meanwhile
-    (:func:`collection_paused`)."""
+    (:func:`experiments.heap.collection_paused`)."""
     with collection_paused():
         return _listed(sweep_dir)
 
