@@ -246,5 +246,9 @@ def compute_times(frames: pd.DataFrame, counts: ev.StageCounts) -> pd.Series:
     stage times of every row of the sweeps (:func:`ttc.evaluation.compute_times`), whose axes
     are filled here alike."""
     filled = {name: with_neutral_axes(table) for name, table in counts.items()}
-    # the axes stay categories: looked up by index, their codes name the values
-    return ev.compute_times(frames[[c for c in TIME_COLUMNS if c in frames]], filled)
+    rows = frames[[c for c in TIME_COLUMNS if c in frames]]
+    # the axes as the strings the counts hold (a merge of a category with strings: 2.5x slower)
+    as_text = {
+        c: t.categories.dtype for c, t in rows.dtypes.items() if isinstance(t, pd.CategoricalDtype)
+    }
+    return ev.compute_times(rows.astype(as_text), filled)

@@ -208,8 +208,10 @@ class SweepSweeper(Sweeper):
 
         assert self.config is not None
         # the imported stack lives as long as this process: out of the garbage collector's
-        # passes (a full collection walked it, 70 ms, 10 times in a grand re-run); done by
-        # the warm server for the commands it serves
+        # passes (a full collection walked it, 70 ms, 10 times in a grand re-run; done by the
+        # warm server for the commands it serves), after one collection (the master config's
+        # composition left 14,000 objects of garbage: 0.04 s)
+        gc.collect()
         gc.freeze()
         key = planning.plan_key(batch, self.config)
         plan = planning.finished_from_memory(sweep_dir, key, self.config)

@@ -146,8 +146,10 @@ def warm(state: SweepState, modules: Sequence[str]) -> int:
     worker = worker_state(state)
     HydraConfig.instance().set_config(worker["master"])
     # the stack and the sweep state live as long as the worker: out of the garbage
-    # collector's passes (a full collection walked them, 70 ms, every ~2 s of jobs); not
-    # collected first (that writes to every object, in a forked worker shared pages)
+    # collector's passes (a full collection walked them, 70 ms, every ~2 s of jobs), after
+    # one collection (in a worker forked from the warm server it walks only what the worker
+    # made since: the server froze the stack, whose shared pages stay untouched)
+    gc.collect()
     gc.freeze()
     for module in imported:
         if callable(hook := getattr(module, "warm_up", None)):
