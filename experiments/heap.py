@@ -31,6 +31,16 @@ def release_freed_memory() -> None:
         libc.malloc_trim(0)
 
 
+def freeze_alive(collect: bool = True) -> None:
+    """Move every object alive now out of the cyclic garbage collector's passes
+    (:func:`gc.freeze`: for good, or until :func:`gc.unfreeze`), after a full collection
+    (``collect``) so that garbage already made is freed, not kept. A process calls it once
+    what it holds lives as long as it (docs/architecture.md)."""
+    if collect:
+        gc.collect()
+    gc.freeze()
+
+
 @contextlib.contextmanager
 def long_lived(collect: bool = True) -> Iterator[Callable[[], None]]:
     """A block given a function that moves every object alive when it is called out of the
@@ -45,14 +55,8 @@ def long_lived(collect: bool = True) -> Iterator[Callable[[], None]]:
     told apart (objects no longer used are freed by their reference counts all the same; only
     garbage in reference cycles waits)."""
     owned = gc.get_freeze_count() == 0
-
-    def freeze() -> None:
-        if collect:
-            gc.collect()
-        gc.freeze()
-
     try:
-        yield freeze
+        yield lambda: freeze_alive(collect)
     finally:
         if owned:
             gc.unfreeze()

@@ -19,7 +19,6 @@ that limit in each worker to :data:`WORKER_GROWTH_BYTES`.
 from __future__ import annotations
 
 import contextlib
-import gc
 import hashlib
 import importlib
 import os
@@ -38,6 +37,7 @@ from joblib import effective_n_jobs
 from joblib.externals.loky import get_reusable_executor, process_executor
 from omegaconf import DictConfig, open_dict
 
+from experiments.heap import freeze_alive
 from experiments.sweep.compose import Composer
 from experiments.sweep.job_run import run_sweep_job
 
@@ -149,8 +149,7 @@ def warm(state: SweepState, modules: Sequence[str]) -> int:
     # collector's passes (a full collection walked them, 70 ms, every ~2 s of jobs), after
     # one collection (in a worker forked from the warm server it walks only what the worker
     # made since: the server froze the stack, whose shared pages stay untouched)
-    gc.collect()
-    gc.freeze()
+    freeze_alive()
     for module in imported:
         if callable(hook := getattr(module, "warm_up", None)):
             hook(worker["master"])

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import gc
 import importlib
 import json
 import os
@@ -29,6 +28,7 @@ import time
 from pathlib import Path
 
 from experiments.cli import SUBCOMMANDS
+from experiments.heap import freeze_alive
 from experiments.warm.client import REFUSED, STATUS, TAKEN
 from experiments.warm.identity import idle_seconds, server_key
 
@@ -83,8 +83,7 @@ def preload() -> None:
     # in every process forked from here: a full collection walked it in each command and
     # worker (70 ms each, 7-10 a grand re-run per process) and wrote to every page of it
     # (pages shared with this server, copied into each process then)
-    gc.collect()
-    gc.freeze()
+    freeze_alive()
 
 
 def native_threads() -> int:

@@ -49,7 +49,7 @@ def text_before(texts: pd.Series, sep: str) -> pd.Series:
     reason codes repeat a few dozen texts over 10⁵ rows; pandas splits every row)."""
     values = texts.to_numpy(dtype=object, copy=True)
     codes, distinct = pd.factorize(texts, use_na_sentinel=True)
-    heads = np.array([t.split(sep, 1)[0] if isinstance(t, str) else np.nan for t in distinct] or [""],
+    heads = np.array([t.split(sep, 1)[0] if isinstance(t, str) else np.nan for t in distinct],
                      dtype=object)  # fmt: skip
     found = codes >= 0
     values[found] = heads[codes[found]]

@@ -134,10 +134,9 @@ SEED = 0
 
 def min_ranks(scores: np.ndarray) -> np.ndarray:
     """(r, n) float: each row's ranks of ``scores`` (r, n), 1 for the least, ties given their
-    least rank: ``pd.DataFrame(scores).rank(axis=1, method="min")`` (NaN: NaN), by one sort
-    of every row (pandas ranks 500 rows of 2,000 settings 3× slower)."""
-    if np.isnan(scores).any():
-        return pd.DataFrame(scores).rank(axis=1, method="min").to_numpy()
+    least rank: ``pd.DataFrame(scores).rank(axis=1, method="min")`` (NaN: NaN; it sorts last,
+    after every value it would otherwise share a rank with), by one sort of every row (500
+    rows of 6,720 settings: 0.28 s against pandas' 0.43 s)."""
     order = np.argsort(scores, axis=1, kind="stable")
     ordered = np.take_along_axis(scores, order, axis=1)
     position = np.broadcast_to(np.arange(scores.shape[1]), scores.shape)
@@ -146,6 +145,7 @@ def min_ranks(scores: np.ndarray) -> np.ndarray:
     least = np.maximum.accumulate(np.where(first, position, 0), axis=1)
     out = np.empty(scores.shape, dtype=float)
     np.put_along_axis(out, order, least + 1.0, axis=1)
+    out[np.isnan(scores)] = np.nan
     return out
 
 
