@@ -11,6 +11,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from omegaconf import OmegaConf
 from experiments.config import register_configs
 from experiments.store import load_runs
 from experiments.sweep.compose import Composer, variant_jobs
-from experiments.sweep.sweeper import group_combination_jobs, validation_jobs
+from experiments.sweep.sweeper import group_combination_jobs, meanwhile, validation_jobs
 from experiments.sweep.workers import STARTED_DIR, shut_down_workers, worker_death
 from tests.conftest import PROJECT_ROOT
 
@@ -151,6 +152,34 @@ def test_every_combination_of_the_dataset_overrides_is_validated() -> None:
     assert ["detector=fast", "dataset.first=3", "dataset.last=5"] not in variant_jobs(batch)
     assert ["detector=fast", "dataset.first=3", "dataset.last=5"] in jobs
     assert ["detector=fast", "dataset.first=3", "dataset.last=5"] in validation_jobs(batch)
+
+
+def test_meanwhile_runs_beside_the_block_and_is_waited_for() -> None:
+    """The deferred work (the plan's skipped records) runs in another thread while the block
+    runs, is finished when the block ends, and its error is raised then; the block's own
+    error wins over it; None runs nothing."""
+    started, release, seen = threading.Event(), threading.Event(), []
+
+    def work() -> None:
+        started.set()
+        assert release.wait(5)
+        seen.append(threading.current_thread().name)
+
+    with meanwhile(work):
+        assert started.wait(5)  # runs while the block does
+        assert not seen
+        release.set()
+    assert seen and seen[0].startswith("ttc-meanwhile")  # waited for, in its own thread
+
+    def broken() -> None:
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"), meanwhile(broken):
+        pass
+    with pytest.raises(KeyboardInterrupt), meanwhile(broken):
+        raise KeyboardInterrupt
+    with meanwhile(None):
+        pass
 
 
 def test_worker_death_names_the_signal() -> None:

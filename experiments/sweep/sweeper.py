@@ -32,8 +32,10 @@ how many settings are done (:mod:`experiments.sweep.interrupt`); the exit status
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -93,6 +95,19 @@ def validation_jobs(batch: Sequence[Sequence[str]]) -> list[list[str]]:
     return jobs + [j for j in group_combination_jobs(batch, "dataset") if j not in jobs]
 
 
+@contextlib.contextmanager
+def meanwhile(work: Callable[[], None] | None) -> Iterator[None]:
+    """Run ``work`` (None: nothing) in a thread while the block runs, and wait for it at the
+    block's end (its exception raised then, unless the block raised one)."""
+    if work is None:
+        yield
+        return
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ttc-meanwhile") as pool:
+        done = pool.submit(work)
+        yield
+        done.result()
+
+
 class SweepSweeper(Sweeper):
     """Hydra's basic sweep validating a few compositions, values included, planning before
     launch and running every job even when some fail."""
@@ -117,6 +132,7 @@ class SweepSweeper(Sweeper):
         self.launcher: Any = None
         self.composer: Composer | None = None
         self.run_ids: list[str] = []  # of every plan of this sweep
+        self.deferred: Callable[[], None] | None = None  # the last plan's (Plan.deferred)
 
     def setup(
         self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig
@@ -190,7 +206,10 @@ class SweepSweeper(Sweeper):
         initial_job_idx = 0
         for batch in batches(expand(overrides), self.max_batch_size):
             jobs = self.plan(batch, sweep_dir)
-            results = self.launcher.launch(jobs, initial_job_idx=initial_job_idx) if jobs else []
+            with meanwhile(self.deferred):  # the skipped records, written while jobs run
+                results = (
+                    self.launcher.launch(jobs, initial_job_idx=initial_job_idx) if jobs else []
+                )
             for r in results:
                 if r.status == JobStatus.FAILED:
                     log.error(f"job {' '.join(r.overrides)} failed: {r._return_value}")
@@ -235,6 +254,7 @@ class SweepSweeper(Sweeper):
             if hasattr(self.launcher, "share_compositions"):
                 self.launcher.share_compositions(composer)
         self.run_ids += plan.run_ids
+        self.deferred = plan.deferred
         remember_command(sweep_dir, self.run_ids)  # python -m experiments.run checks it first
         print(plan.summary(), flush=True)
         return plan.jobs
