@@ -107,34 +107,60 @@ SECTIONS_KEPT = 1 << 16
 def _flat_text(text: str) -> dict[str, str]:
     """``_flat(json.loads(text))`` of a config text, each top-level entry's value flattened
     once per process by its own text: a sweep's configs repeat a few dozen distinct entries
-    (``grand``'s 40,320: 36; 2.6 → 0.6 s). The entries are cut where the previous config's
-    next key starts (``, "key": ``, as :func:`json.dumps` writes them; such a text inside a
-    string value is escaped, so a cut is either the entry's end or a place where its text is
-    no JSON value); a cut that fails (keys other than the last config's, other spacing, a
-    value that is not one JSON value) parses the text whole."""
-    keys, at, out = _LAST_KEYS[0], 1, {}
-    if not keys or not text.startswith("{") or not text.endswith("}"):
+    (``grand``'s 40,320: 36; 2.6 → 0.6 s) (:func:`_entries`)."""
+    entries = _entries(text)
+    if entries is None:
         return _flat_whole(text)
+    out: dict[str, str] = {}
+    for leaves in entries:
+        out.update(leaves)
+    return out
+
+
+def entry_leaves(text: str, key: str) -> dict[str, str]:
+    """The leaves of the top-level entry ``key`` of a config text (:func:`_flat`'s, by dotted
+    key), the entries after it not read (:func:`_entries`): a run's recording is its
+    ``dataset`` entry, the third (33,600 configs: 0.22 s parsed up to it, 0.05 s cut)."""
+    entries = _entries(text, key)
+    if entries is None:
+        head = f"{key}."
+        return {k: v for k, v in _flat_whole(text).items() if k == key or k.startswith(head)}
+    return entries[-1]
+
+
+def _entries(text: str, until: str | None = None) -> list[dict[str, str]] | None:
+    """The leaves of each top-level entry of a config text, in order, up to the entry
+    ``until`` (None: all of them); None when the text cannot be cut so. The entries are cut
+    where the previous config's next key starts (``, "key": ``, as :func:`json.dumps` writes
+    them; such a text inside a string value is escaped), and each is parsed (once per
+    process by its text): a cut inside an entry leaves that entry's text no JSON value (it
+    holds the cut's ``,`` outside any bracket of its own), so a text whose cuts all parse is
+    cut right; keys other than the last config's, other spacing or ``until`` absent: None."""
+    keys, at, out = _LAST_KEYS[0], 1, []
+    if not keys or not text.startswith("{") or not text.endswith("}"):
+        return None
     for i, key in enumerate(keys):
         head = f'"{key}": ' if i == 0 else f', "{key}": '
         if not text.startswith(head, at):
-            return _flat_whole(text)
+            return None
         start = at + len(head)
         at = text.find(f', "{keys[i + 1]}": ', start) if i + 1 < len(keys) else len(text) - 1
         if at < 0:
-            return _flat_whole(text)
+            return None
         section = (key, text[start:at])
         leaves = _SECTIONS.get(section)
         if leaves is None:
             try:
                 leaves = _flat({key: json.loads(section[1])})
             except ValueError:  # not one JSON value: cut inside an entry
-                return _flat_whole(text)
+                return None
             if len(_SECTIONS) >= SECTIONS_KEPT:
                 _SECTIONS.clear()
             _SECTIONS[section] = leaves
-        out.update(leaves)
-    return out
+        out.append(leaves)
+        if key == until:
+            return out
+    return out if until is None else None
 
 
 def _flat_whole(text: str) -> dict[str, str]:

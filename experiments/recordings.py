@@ -7,16 +7,20 @@ from __future__ import annotations
 
 import functools
 import json
-import re
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from experiments.config import setting_hash
 from experiments.data.datasets import bag_source, recording_id
-from experiments.flat_configs import NO_LEAF, config_table, flattened_leaves, leaf_value
+from experiments.flat_configs import (
+    NO_LEAF,
+    config_table,
+    entry_leaves,
+    flattened_leaves,
+    leaf_value,
+)
 from ttc.io.ros2_bag import BagSource
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
@@ -37,44 +41,8 @@ def recording_of(runs: pd.DataFrame) -> pd.Series:
 @functools.lru_cache(maxsize=1 << 17)
 def _sequence(config: str) -> str:
     """``dataset.sequence`` of a run's stored config (each config text read once per
-    process, only up to its ``dataset`` entry: :func:`top_level_entry`)."""
-    return top_level_entry(config, "dataset")["sequence"]
-
-
-_DECODER = json.JSONDecoder()
-_SPACE = re.compile(r"\s*")
-
-
-def top_level_entry(text: str, key: str) -> Any:
-    """The value of ``key`` in the JSON object ``text``, decoding the entries before it and
-    not those after (a stored config is 2 kB, its keys sorted: ``dataset`` comes third, so
-    40,320 configs take 0.3 s instead of 1.0 s to parse whole); the last one of a key given
-    twice, as :func:`json.loads`; :class:`KeyError` when absent, :class:`ValueError` when
-    ``text`` is not a JSON object."""
-    found, end = _MISSING, len(text)
-    at = _SPACE.match(text, 0).end()
-    if not text.startswith("{", at):
-        raise ValueError("not a JSON object")
-    at = _SPACE.match(text, at + 1).end()
-    while at < end and text[at] != "}":
-        name, at = _DECODER.raw_decode(text, at)
-        at = _SPACE.match(text, at).end()
-        if not text.startswith(":", at):
-            raise ValueError(f"':' expected at {at}")
-        value, at = _DECODER.raw_decode(text, _SPACE.match(text, at + 1).end())
-        if name == key:
-            found = value  # a later duplicate would win in json.loads: then read on
-            if text.find(f'"{key}"', at) < 0:
-                return found
-        at = _SPACE.match(text, at).end()
-        if text.startswith(",", at):
-            at = _SPACE.match(text, at + 1).end()
-    if found is _MISSING:
-        raise KeyError(key)
-    return found
-
-
-_MISSING = object()
+    process, only up to its ``dataset`` entry: :func:`experiments.flat_configs.entry_leaves`)."""
+    return leaf_value(entry_leaves(config, "dataset")["dataset.sequence"])
 
 
 def recording_source_of(runs: pd.DataFrame, run_id: str, root: Path) -> Path | BagSource:

@@ -234,30 +234,39 @@ def test_configs_flattened_once_per_process_give_each_call_its_own_table() -> No
 
 
 def test_a_configs_recording_is_read_as_json_reads_it() -> None:
-    """:func:`experiments.recordings.top_level_entry` (the summary reads each run's
-    ``dataset`` entry without parsing the whole config) gives what :func:`json.loads` gives:
-    stored configs, other spacing, a nested key of the same name, a key given twice (the last
-    wins), escapes; a missing key and a text that is no object raise."""
+    """:func:`experiments.flat_configs.entry_leaves` (the summary reads each run's
+    ``dataset`` entry without parsing the whole config) gives the leaves
+    :func:`json.loads` gives, each text read twice (the second cut as the first's keys say):
+    stored configs one after another, other spacing, a nested key of the same name, one
+    that makes a cut land inside an entry, a key given twice (the last wins), escapes; a
+    missing key gives no leaf."""
     import json
 
-    import pytest
+    from experiments.flat_configs import _flat, entry_leaves
 
-    from experiments.recordings import top_level_entry
+    def expected(text: str) -> dict[str, str]:
+        flat = _flat(json.loads(text))
+        return {k: v for k, v in flat.items() if k == "dataset" or k.startswith("dataset.")}
 
-    stored = json.dumps({"box_matching": {"dataset": "x"}, "camera_ttc": [1, {"a": None}],
-                         "dataset": {"sequence": "kitti/2011_09_26", "last": 18},
-                         "detector": {"dataset": "y"}}, sort_keys=True)  # fmt: skip
+    stored = [json.dumps({"box_matching": {"dataset": "x"}, "camera_ttc": [1, {"a": None}],
+                          "dataset": {"sequence": f"kitti/{d}", "last": 18},
+                          "detector": {"dataset": "y"}}, sort_keys=True) for d in "abc"]  # fmt: skip
+    inside = json.dumps({"box_matching": {"dataset": "x"},
+                         "camera_ttc": {"a": 1, "dataset": {"sequence": "no"}, "detector": 2},
+                         "dataset": {"sequence": "yes"}, "detector": 3})  # fmt: skip
     texts = [
-        stored,
-        json.dumps(json.loads(stored), indent=2),
-        json.dumps(json.loads(stored), separators=(",", ":")),
+        *stored,
+        inside,
+        *stored,
+        json.dumps(json.loads(stored[0]), indent=2),
+        json.dumps(json.loads(stored[0]), separators=(",", ":")),
         ' { "dataset" : 1 , "dataset" : {"sequence": "b\\"q\\u00e9"} } ',
         '{"a": "\\"dataset\\": 3", "dataset": [1, 2]}',
         '{"dataset": {}, "z": {"dataset": 5}}',
+        '{"detector": {"dataset": 1}}',
     ]
     for text in texts:
-        assert top_level_entry(text, "dataset") == json.loads(text)["dataset"]
-    with pytest.raises(KeyError):
-        top_level_entry('{"detector": {"dataset": 1}}', "dataset")
-    with pytest.raises(ValueError):
-        top_level_entry('["dataset", 1]', "dataset")
+        assert entry_leaves(text, "dataset") == expected(text), text
+        assert entry_leaves(text, "dataset") == expected(text), text
+    assert entry_leaves(inside, "dataset") == {"dataset.sequence": '"yes"'}
+    assert entry_leaves('{"detector": {"dataset": 1}}', "dataset") == {}
