@@ -254,6 +254,8 @@ def test_the_records_the_store_writes_are_listed_without_parsing_their_files(
     listed = store.list_records(tmp_path)
     assert listed == expected and not parsed
     assert listed[0]["inputs"] is listed[1]["inputs"]  # stored once in the index file
+    names = {k for r in listed for k in r}  # and so is each field name: one object each
+    assert len({id(k) for r in listed for k in r}) == len(names)
     # another writer replaces a2's record (a new file): read from the file, a1 from the index
     store.write_json_atomic({**expected[1], "status": "failed"}, files[1], indent=None)
     listed = store.list_records(tmp_path)

@@ -103,13 +103,17 @@ SHARED_TEXT_CHARS = 64
 
 def _texts_shared(entries: IndexEntries) -> IndexEntries:
     """``entries`` with equal long text values (a batch's ``inputs``: 3.7 kB of a 7 kB
-    record, the same for each of its runs) made one object, which pickle then stores once
-    (and loads as one): ``grand`` 0–18's index 233 MB before."""
+    record, the same for each of its runs) and equal field names made one object each, which
+    pickle then stores once (and loads as one): ``grand`` 0–18's index 233 MB before; a
+    record's ~40 field names, new strings in each record parsed, took a quarter of loading
+    an index (5,600 records: 39 → 28 ms)."""
     seen: dict[str, str] = {}
     out: IndexEntries = {}
     for name, (identity, record) in entries.items():
         out[name] = (identity, {
-            k: seen.setdefault(v, v) if isinstance(v, str) and len(v) >= SHARED_TEXT_CHARS else v
+            seen.setdefault(k, k): (
+                seen.setdefault(v, v) if isinstance(v, str) and len(v) >= SHARED_TEXT_CHARS else v
+            )
             for k, v in record.items()
         })  # fmt: skip
     return out
