@@ -130,16 +130,20 @@ def setting_hash(setting: dict[str, Any], memo: dict[int, tuple[Any, str]] | Non
     if memo is None:
         text = json.dumps(identity, sort_keys=True, separators=(",", ":"))
     else:
-        parts = []
-        for key in sorted(identity):
-            value = identity[key]
-            known = memo.get(id(value))
-            if known is None or known[0] is not value:
-                known = memo[id(value)] = (value, json.dumps(value, sort_keys=True,
-                                                             separators=(",", ":")))  # fmt: skip
-            parts.append(json.dumps(key) + ":" + known[1])
+        parts = [
+            json.dumps(key) + ":" + value_text(identity[key], memo) for key in sorted(identity)
+        ]
         text = "{" + ",".join(parts) + "}"
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def value_text(value: Any, memo: dict[int, tuple[Any, str]]) -> str:
+    """The canonical JSON (sorted keys, no spaces) of a setting's top-level value, kept in
+    ``memo`` by object (:func:`setting_hash`)."""
+    known = memo.get(id(value))
+    if known is None or known[0] is not value:
+        known = memo[id(value)] = (value, json.dumps(value, sort_keys=True, separators=(",", ":")))
+    return known[1]
 
 
 def run_id(cfg: DictConfig) -> str:

