@@ -39,3 +39,35 @@ def test_every_axis_has_a_pinned_value() -> None:
 @pytest.mark.parametrize("overrides", list(PINNED), ids=lambda o: " ".join(o) or "default")
 def test_run_id_is_pinned(overrides: tuple[str, ...]) -> None:
     assert run_id(composed(list(overrides))) == PINNED[overrides]
+
+
+def test_a_batchs_settings_keep_their_ids_and_configs(tmp_path) -> None:
+    """A batch's plan file holds its members' shared entries once; read back, each setting
+    equals the one planned, its entries shared are one object, and a record made with the
+    entries' texts kept by object has the run id and the ``config`` text
+    (``json.dumps(setting, sort_keys=True)``) of one made without them."""
+    import json
+
+    from experiments.config import setting_config
+    from experiments.identity import config_text, setting_hash
+    from experiments.sweep.plan import BATCH_FREE_AXES, _plan_file, plan_path, read_plan
+
+    free = sorted(BATCH_FREE_AXES)
+    base = setting_config(composed(["dataset.last=3"]))
+    other = setting_config(composed(["dataset.last=3", "keypoint_filter=zscore"]))
+    odd = {**base, free[0]: {"name": 'é\n"q', "x": [1.5, None, {"b": 1, "a": 2}]}}
+    batch = [{"run_id": setting_hash(s), "overrides": [f"n={i}"], "setting": s}
+             for i, s in enumerate([base, other, odd])]  # fmt: skip
+    path = plan_path(tmp_path, "batch-x")
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(_plan_file("batch-x", batch)))
+    plan = read_plan(tmp_path, "batch-x")
+    assert [m["setting"] for m in plan["members"]] == [base, other, odd]
+    assert [m["run_id"] for m in plan["members"]] == [m["run_id"] for m in batch]
+    first, second = (m["setting"] for m in plan["members"][:2])
+    assert first["detector"] is second["detector"]
+    texts: dict = {}
+    for member in plan["members"]:
+        setting = member["setting"]
+        assert setting_hash(setting, texts) == member["run_id"]
+        assert config_text(setting, texts) == json.dumps(setting, sort_keys=True)
