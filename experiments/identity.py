@@ -118,11 +118,7 @@ def run_identity(setting: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-#: Texts of a sweep's setting entries kept by object (:func:`value_text`).
-Texts = dict[tuple[int, bool], tuple[Any, str]]
-
-
-def setting_hash(setting: dict[str, Any], memo: Texts | None = None) -> str:
+def setting_hash(setting: dict[str, Any], memo: dict[int, tuple[Any, str]] | None = None) -> str:
     """The run id of a :func:`setting_config`: 16 hex digits of the SHA-256 of its
     :func:`run_identity`'s canonical JSON (sorted keys, no spaces).
 
@@ -141,27 +137,13 @@ def setting_hash(setting: dict[str, Any], memo: Texts | None = None) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def value_text(value: Any, memo: Texts, spaced: bool = False) -> str:
-    """The JSON of a setting's top-level value, keys sorted, without spaces (the run id's
-    text) or ``spaced`` (the stored config's: :func:`config_text`), kept in ``memo`` by
-    object (settings that share their values, a sweep's, write each value once)."""
-    key = (id(value), spaced)
-    known = memo.get(key)
+def value_text(value: Any, memo: dict[int, tuple[Any, str]]) -> str:
+    """The canonical JSON (sorted keys, no spaces) of a setting's top-level value, kept in
+    ``memo`` by object (:func:`setting_hash`)."""
+    known = memo.get(id(value))
     if known is None or known[0] is not value:
-        separators = (", ", ": ") if spaced else (",", ":")
-        known = memo[key] = (value, json.dumps(value, sort_keys=True, separators=separators))
+        known = memo[id(value)] = (value, json.dumps(value, sort_keys=True, separators=(",", ":")))
     return known[1]
-
-
-def config_text(setting: dict[str, Any], memo: Texts | None = None) -> str:
-    """A setting's stored ``config``: ``json.dumps(setting, sort_keys=True)``, each top-level
-    value's text kept in ``memo`` when given (:func:`value_text`; the same text)."""
-    if memo is None:
-        return json.dumps(setting, sort_keys=True)
-    parts = [
-        json.dumps(k) + ": " + value_text(setting[k], memo, spaced=True) for k in sorted(setting)
-    ]
-    return "{" + ", ".join(parts) + "}"
 
 
 def run_id(cfg: DictConfig) -> str:

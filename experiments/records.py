@@ -6,13 +6,13 @@ for invalid pairs recorded at planning time (:mod:`experiments.sweep.plan`)."""
 from __future__ import annotations
 
 import datetime as dt
+import json
 import resource
 from typing import Any
 
 import pandas as pd
 
 from experiments.config import axis_values, setting_hash
-from experiments.identity import Texts, config_text
 from experiments.provenance import code_version, machine, package_versions
 from ttc.settings import AXES
 
@@ -22,24 +22,17 @@ def now() -> str:
     return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
 
 
-def record_head(
-    setting: dict[str, Any],
-    sweep_id: str,
-    cache_enabled: bool,
-    memo: Texts | None = None,
-) -> dict[str, Any]:
-    """The parts of a run record known before the run, from its :func:`setting_config`.
-    ``memo``: as :func:`experiments.identity.setting_hash`'s (settings sharing their entries,
-    a batch's: each entry's JSON made once)."""
+def record_head(setting: dict[str, Any], sweep_id: str, cache_enabled: bool) -> dict[str, Any]:
+    """The parts of a run record known before the run, from its :func:`setting_config`."""
     dataset = setting["dataset"]
     return {
-        "run_id": setting_hash(setting, memo),
+        "run_id": setting_hash(setting),
         "sweep_id": sweep_id,
         **axis_values(setting),
         "first_frame": int(dataset["first"]),
         "last_frame": int(dataset["last"]),
         "step": int(dataset["step"]),
-        "config": config_text(setting, memo),
+        "config": json.dumps(setting, sort_keys=True),
         **code_version(),
         **{f"version_{k}": v for k, v in package_versions().items()},
         **machine(),

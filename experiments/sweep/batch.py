@@ -22,7 +22,6 @@ from omegaconf import DictConfig
 
 from experiments import progress, store
 from experiments.config import prepared_frame_range
-from experiments.identity import Texts
 from experiments.records import now, peak_rss_mb, record_head, row_statistics
 from experiments.sweep.compose import core_settings
 from experiments.sweep.plan import read_plan
@@ -76,10 +75,8 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
     """Run the members of ``todo`` together; save and return their records."""
     cv2.setNumThreads(int(cfg.cv_threads))
     start = time.perf_counter()
-    texts: Texts = {}  # a batch's settings share their entries (read_plan)
-    cache_enabled = bool(cfg.cache.enabled)
-    records = [record_head(m["setting"], sweep_dir.name, cache_enabled, texts) for m in todo]
-    made = core_settings([m["setting"] for m in todo], texts)  # a bad value costs only its setting
+    records = [record_head(m["setting"], sweep_dir.name, bool(cfg.cache.enabled)) for m in todo]
+    made = core_settings([m["setting"] for m in todo])  # a bad value costs only its setting
     errors: dict[int, BaseException] = {
         i: s for i, s in enumerate(made) if isinstance(s, Exception)
     }

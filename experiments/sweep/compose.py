@@ -33,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import itertools
+import json
 import operator
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
@@ -42,14 +43,7 @@ from hydra.core.override_parser.types import Override, OverrideType
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from experiments.config import SETTINGS_FIELDS, settings_field
-from experiments.identity import (
-    SETTING_KEYS,
-    Texts,
-    finish_setting,
-    setting_config,
-    setting_entry,
-    value_text,
-)
+from experiments.identity import SETTING_KEYS, finish_setting, setting_config, setting_entry
 from experiments.sweep.containers import (
     ANY_KEY,
     comparable,
@@ -374,20 +368,16 @@ def variant_jobs(jobs: Sequence[Sequence[str]]) -> list[list[str]]:
     return out
 
 
-def core_settings(
-    settings: Sequence[dict[str, Any]], texts: Texts | None = None
-) -> list[Settings | Exception]:
+def core_settings(settings: Sequence[dict[str, Any]]) -> list[Settings | Exception]:
     """The core's :class:`Settings` of each setting (the exception instead where a value is
     bad: it costs only its setting), each field converted once per distinct value of its
-    entries (told apart by their JSON: :func:`experiments.identity.value_text`, kept in
-    ``texts`` by object)."""
-    texts = {} if texts is None else texts
-    fields: dict[tuple[str, tuple[str, ...]], Any] = {}
+    entries."""
+    fields: dict[tuple[str, str], Any] = {}
     out: list[Settings | Exception] = []
     for setting in settings:
         values: dict[str, Any] = {}
         for name, (sources, _) in SETTINGS_FIELDS.items():
-            memo = (name, tuple(value_text(setting.get(s), texts) for s in sources))
+            memo = (name, json.dumps([setting.get(s) for s in sources], sort_keys=True))
             if memo not in fields:
                 try:
                     fields[memo] = settings_field(name, setting)
