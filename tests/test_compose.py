@@ -24,7 +24,7 @@ from experiments.config import (
     settings_from_config,
 )
 from experiments.sweep.compose import Composer, core_settings, variant_jobs
-from experiments.sweep.containers import references
+from experiments.sweep.containers import comparable, equal_except, references
 from tests.conftest import PROJECT_ROOT
 
 CONF = PROJECT_ROOT / "conf"
@@ -172,6 +172,49 @@ def test_references_between_entries() -> None:
     assert references({"seq": "${kitti_raw_sequence:${.date},${.drive}}"}) == set()
     assert references({"seq": "${..x}"}) == {"*"}
     assert references({"a": "${oc.select:dataset.root,/}"}) == {"*"}  # reads a key by name
+
+
+def test_two_compositions_equal_but_under_a_key() -> None:
+    """:func:`equal_except` tells what comparing :func:`comparable` copies tells, without
+    copying: differences under the key, its group choice and the job keys are ignored,
+    anywhere else (a value, a key in one only, a list, a type) they count; the containers
+    are left as they were."""
+    import copy
+
+    base = {
+        "detector": {"name": "orb", "n": [1, 2]},
+        "matcher": {"name": "bf", "k": 2},
+        "dataset": {"last": 3},
+        "hydra": {"runtime": {"choices": {"detector": "orb", "matcher": "bf"}},
+                  "job": {"id": "a", "num": 1, "name": "x"}, "overrides": {"task": ["a"]}},
+    }  # fmt: skip
+
+    def changed(path: str, value) -> dict:
+        out = copy.deepcopy(base)
+        *parents, leaf = path.split(".")
+        node = out
+        for part in parents:
+            node = node[part]
+        if value is KeyError:
+            node.pop(leaf, None)
+        else:
+            node[leaf] = value
+        return out
+
+    same = ["detector", "detector.name", "detector.n", "detector.extra", "hydra.job.id",
+            "hydra.job.num", "hydra.overrides.task", "hydra.runtime.choices.detector"]  # fmt: skip
+    other = ["matcher.k", "matcher.extra", "dataset", "hydra.job.name",
+             "hydra.runtime.choices.matcher"]  # fmt: skip
+    for path in same + other:
+        for value in ("changed", KeyError, [3], 1.0):
+            variant = changed(path, value)
+            before = copy.deepcopy(variant)
+            expected = comparable(variant, ["detector"]) == comparable(base, ["detector"])
+            assert equal_except(variant, base, ["detector"]) == expected, (path, value)
+            unchanged = variant == base  # "matcher.extra" removed, "matcher.k" as 2.0
+            assert expected == (path in same or unchanged), (path, value)
+            assert variant == before
+    assert equal_except(base, changed("matcher.k", 3), ["detector", "matcher"])
 
 
 def test_core_settings_of_a_batch(hydra_env) -> None:

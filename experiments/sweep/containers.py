@@ -22,27 +22,53 @@ CONFIG_READING_RESOLVERS = ("oc.select", "oc.dict.keys", "oc.dict.values")
 _INTERPOLATION = re.compile(r"\$\{\s*([^${}:\s]*)\s*([:}])")
 
 
-def _drop(container: dict[str, Any], dotted: str) -> None:
-    """Remove ``dotted`` (a.b.c) from nested dicts, if present."""
-    *parents, leaf = dotted.split(".")
-    for part in parents:
+def _drop(container: dict[str, Any], parent: str, leaf: str) -> None:
+    """Remove ``leaf`` from the dict at dotted path ``parent`` (``""``: the container itself)
+    of nested dicts, if present."""
+    for part in parent.split(".") if parent else []:
         container = container.get(part)
         if not isinstance(container, dict):
             return
     container.pop(leaf, None)
 
 
+def _ignored(keys: Sequence[str]) -> list[tuple[str, ...]]:
+    """The paths two compositions that differ only under ``keys`` (dotted) may differ at:
+    those keys, their group choices (``hydra.runtime.choices``) and the job-specific Hydra
+    keys."""
+    paths = [tuple(key.split(".")) for key in keys]
+    paths += [("hydra", "runtime", "choices", key) for key in keys]
+    return paths + [("hydra", *job_key.split(".")) for job_key in JOB_KEYS]
+
+
 def comparable(container: dict[str, Any], keys: Sequence[str]) -> dict[str, Any]:
-    """A copy of a config's plain containers (interpolations unresolved) without ``keys``
-    (dotted), their group choices and the job-specific Hydra keys: what two compositions
-    that differ only under ``keys`` have equal."""
+    """A copy of a config's plain containers (interpolations unresolved) without the paths
+    :func:`_ignored` names for ``keys``: what two compositions that differ only under
+    ``keys`` have equal."""
     out = copy.deepcopy(container)
-    for key in keys:
-        _drop(out, key)
-        out["hydra"]["runtime"]["choices"].pop(key, None)
-    for job_key in JOB_KEYS:
-        _drop(out["hydra"], job_key)
+    for path in _ignored(keys):
+        _drop(out, ".".join(path[:-1]), path[-1])
     return out
+
+
+def equal_except(a: dict[str, Any], b: dict[str, Any], keys: Sequence[str]) -> bool:
+    """``comparable(a, keys) == comparable(b, keys)`` without copying either (only the
+    dicts on the way to an ignored path are walked; the rest compared as they are): an
+    earlier ``grand`` plan's 26 compositions checked in 0.7 instead of 5.5 ms."""
+    skip = set(_ignored(keys))
+    return _equal_except(a, b, (), skip, {p[:i] for p in skip for i in range(len(p))})
+
+
+def _equal_except(
+    a: Any, b: Any, at: tuple[str, ...], skip: set[tuple[str, ...]], above: set[tuple[str, ...]]
+) -> bool:
+    """:func:`equal_except` below path ``at`` (``above``: the proper prefixes of ``skip``)."""
+    if at not in above or not (isinstance(a, dict) and isinstance(b, dict)):
+        return a == b
+    mine = {k for k in a if (*at, k) not in skip}
+    if mine != {k for k in b if (*at, k) not in skip}:
+        return False
+    return all(_equal_except(a[k], b[k], (*at, k), skip, above) for k in mine)
 
 
 def differing_paths(a: Any, b: Any, prefix: str = "") -> list[str] | None:

@@ -24,7 +24,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import OverrideType
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.sweep.containers import comparable, overlap
+from experiments.sweep.containers import equal_except, overlap
 
 
 @dataclass
@@ -50,7 +50,7 @@ class EarlierPlan:
             return None
         dotted = [k.replace("/", ".") for k in delta]
         container = OmegaConf.to_container(earlier_base, resolve=False)
-        if comparable(container, dotted) != comparable(base, dotted):
+        if not equal_except(container, base, dotted):
             return None
         return EarlierView(self, container, list(old), dotted)
 
@@ -82,6 +82,6 @@ class EarlierView:
         if cfg is None:
             return None
         container = OmegaConf.to_container(cfg, resolve=False)
-        if comparable(container, [dotted]) != comparable(self.base, [dotted]):
+        if not equal_except(container, self.base, [dotted]):
             return None
         return cfg, container
