@@ -188,8 +188,9 @@ def _may_carry_truth(lead: LeadRows) -> bool:
 def _truth_rows(lead: LeadRows) -> pd.DataFrame:
     """What :func:`experiments.recordings.report_kind` and the references read of the lead
     rows to tell a generated recording (a truth): every column when the sweep's rows carry
-    one, else no row (``run_id`` alone: what they read of a real drive's rows is that they
-    carry no truth; reading a ``grand`` re-run's 640,000 run ids took 0.15 s)."""
+    one, else none (an empty ``run_id`` column: all they need of a real drive's rows is that
+    they carry no truth, which the schema says; reading a ``grand`` re-run's 640,000 run ids
+    took 0.15 s)."""
     if _may_carry_truth(lead):
         return lead.frame()
     return pd.DataFrame({"run_id": pd.Series([], dtype=object)})
