@@ -22,10 +22,10 @@ CONFIG_READING_RESOLVERS = ("oc.select", "oc.dict.keys", "oc.dict.values")
 _INTERPOLATION = re.compile(r"\$\{\s*([^${}:\s]*)\s*([:}])")
 
 
-def _drop(container: dict[str, Any], parent: str, leaf: str) -> None:
-    """Remove ``leaf`` from the dict at dotted path ``parent`` (``""``: the container itself)
-    of nested dicts, if present."""
-    for part in parent.split(".") if parent else []:
+def _drop(container: dict[str, Any], path: tuple[str, ...]) -> None:
+    """Remove the key at ``path`` (keys from the top) from nested dicts, if present."""
+    *parents, leaf = path
+    for part in parents:
         container = container.get(part)
         if not isinstance(container, dict):
             return
@@ -47,7 +47,7 @@ def comparable(container: dict[str, Any], keys: Sequence[str]) -> dict[str, Any]
     ``keys`` have equal."""
     out = copy.deepcopy(container)
     for path in _ignored(keys):
-        _drop(out, ".".join(path[:-1]), path[-1])
+        _drop(out, path)
     return out
 
 

@@ -37,7 +37,7 @@ import logging
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.plugins import Plugins
@@ -61,6 +61,9 @@ from experiments.sweep.kept import (
     load_compositions,
     load_earlier,
 )
+
+if TYPE_CHECKING:
+    from experiments.sweep.plan import Plan
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +135,6 @@ class SweepSweeper(Sweeper):
         self.launcher: Any = None
         self.composer: Composer | None = None
         self.run_ids: list[str] = []  # of every plan of this sweep
-        self.deferred: Callable[[], None] | None = None  # the last plan's (Plan.deferred)
 
     def setup(
         self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig
@@ -205,8 +207,9 @@ class SweepSweeper(Sweeper):
         returns: list[Sequence[JobReturn]] = []
         initial_job_idx = 0
         for batch in batches(expand(overrides), self.max_batch_size):
-            jobs = self.plan(batch, sweep_dir)
-            with meanwhile(self.deferred):  # the skipped records, written while jobs run
+            plan = self.plan(batch, sweep_dir)
+            jobs = plan.jobs
+            with meanwhile(plan.deferred):  # the skipped records, written while jobs run
                 results = (
                     self.launcher.launch(jobs, initial_job_idx=initial_job_idx) if jobs else []
                 )
@@ -217,9 +220,9 @@ class SweepSweeper(Sweeper):
             returns.append(results)
         return returns
 
-    def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> list[list[str]]:
-        """The jobs to launch for ``batch`` (:func:`experiments.sweep.plan.make_plan`, after
-        validation), printed. A sweep planned before with the same jobs, config, config files
+    def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> Plan:
+        """The plan of ``batch`` (:func:`experiments.sweep.plan.make_plan`, after validation:
+        its jobs to launch and the work left for while they run), printed. A sweep planned before with the same jobs, config, config files
         and code (:func:`experiments.sweep.plan.plan_key`) whose every run is complete launches
         nothing without composing a config."""
         from experiments.sweep import plan as planning  # noqa: PLC0415 (pandas, OpenCV)
@@ -254,7 +257,6 @@ class SweepSweeper(Sweeper):
             if hasattr(self.launcher, "share_compositions"):
                 self.launcher.share_compositions(composer)
         self.run_ids += plan.run_ids
-        self.deferred = plan.deferred
         remember_command(sweep_dir, self.run_ids)  # python -m experiments.run checks it first
         print(plan.summary(), flush=True)
-        return plan.jobs
+        return plan
