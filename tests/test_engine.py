@@ -4,6 +4,7 @@ one-setting pipeline), and a single run is the same rows as that setting inside 
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,14 @@ from experiments.config import settings_from_config
 from tests.conftest import PROJECT_ROOT
 from tests.test_beyond_rubric import composed
 from ttc.engine.cache import StageCache
-from ttc.engine.runner import pair_detail, run_setting, run_settings
+from ttc.engine.runner import (
+    member_keys,
+    pair_detail,
+    run_setting,
+    run_settings,
+    setting_keys,
+    upstream_key,
+)
 from ttc.rows import MEMBER
 from ttc.settings import FrameRange
 
@@ -249,3 +257,17 @@ def test_members_with_the_same_box_pairs_share_their_chained_tracks(
     for member, s in enumerate(settings):
         mine = rows.loc[rows[MEMBER] == member, "track_id"].to_numpy()
         np.testing.assert_array_equal(mine, run_setting(s, frames, cache)["track_id"].to_numpy())
+
+
+def test_setting_keys_are_each_settings_own_keys() -> None:
+    """Keys made once per set of shared field objects are each setting's own keys: settings
+    sharing objects, equal settings made apart, settings differing upstream or in a step."""
+    base = settings_from_config(composed([]))
+    others = [settings_from_config(composed(o)) for o in (
+        ["keypoint_filter=zscore"], ["detector=orb", "descriptor=orb"], ["lidar_ttc=median"])]  # fmt: skip
+    settings = [base, copy.deepcopy(base), *others, base, others[0]]
+    upstream, steps = setting_keys(settings)
+    assert upstream == [upstream_key(s) for s in settings]
+    assert steps == [member_keys(s) for s in settings]
+    assert upstream[0] == upstream[1] == upstream[2] != upstream[3]
+    assert steps[0] == steps[1] != steps[2]
