@@ -267,3 +267,60 @@ def test_kept_lead_rows_come_back_in_the_datasets_fragment_order() -> None:
         got = kept_tables.in_fragment_order(table, order)
         np.testing.assert_array_equal(got["row"].to_numpy(), expected)
         assert got["text"].to_pylist() == [f"r{i}" for i in expected]
+
+
+def _summed(counts: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
+    """Stage-time counts as their readers see them: each (inputs, frame, ms)'s rows summed."""
+    out = {}
+    for name, table in counts.items():
+        keys = [c for c in table.columns if c != "n"]
+        out[name] = table.groupby(keys, dropna=False, sort=True)["n"].sum().reset_index()
+    return out
+
+
+def test_kept_counts_are_every_lead_rows_counts(tmp_path, monkeypatch) -> None:
+    """The summary's computing-time counts kept (:func:`experiments.ranking_cache.lead_counts`)
+    sum up as the counts of every lead row: a new fragment's rows alone counted; a run
+    recomputed into another fragment, or a damaged file, counted again from every row."""
+    from experiments import ranking_cache, store
+    from experiments.lead_cache import LeadRows
+    from ttc.evaluation import stage_times
+
+    def run(run_id: str, detector: str, ms: list[float], cached: list[bool]) -> pd.DataFrame:
+        return pd.DataFrame({"run_id": run_id, "detector": detector, "frame": [1, 2, 3],
+                             "is_lead": True, "ttc_camera": [9.0, 8.0, 7.0],
+                             "ms_keypoints": ms, "cached_keypoints": cached})  # fmt: skip
+
+    def save(batch: str, *runs: pd.DataFrame) -> None:
+        records = [{"run_id": r["run_id"].iloc[0], "status": "ok", "n_rows": 3} for r in runs]
+        store.save_batch(tmp_path, batch, records, pd.concat(runs, ignore_index=True))
+
+    counted: list[int] = []
+    real = stage_times.stage_time_counts
+    monkeypatch.setattr(
+        stage_times, "stage_time_counts", lambda f: counted.append(len(f)) or real(f)
+    )
+
+    def check() -> None:
+        lead = LeadRows(tmp_path)
+        whole = real(lead.frame(columns=ranking_cache._count_columns(lead)))
+        counted.clear()
+        got = ranking_cache.lead_counts(lead)
+        for name, table in _summed(whole).items():
+            pd.testing.assert_frame_equal(_summed(got)[name], table)
+
+    save("batch-a", run("a", "fast", [5.0, 6.0, 7.0], [False] * 3),
+         run("b", "orb", [1.0, 1.0, 2.0], [True, False, False]))  # fmt: skip
+    check()
+    assert counted == [6]
+    save("batch-b", run("c", "fast", [9.0, 9.0, 9.0], [False] * 3))
+    check()
+    assert counted == [3]  # the new fragment alone
+    check()
+    assert counted == []  # nothing new
+    save("batch-c", run("a", "fast", [1.0, 1.0, 1.0], [False] * 3))  # a recomputed
+    check()
+    assert counted == [9]  # every live lead row: a's old rows no longer counted
+    (tmp_path / ".summary" / ranking_cache.COUNTS_FILE).write_bytes(b"damaged")
+    check()
+    assert counted == [9]
