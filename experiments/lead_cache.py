@@ -145,7 +145,7 @@ class LeadRows:
         #: Each live fragment's key, in the dataset's order.
         self.keys: list[str] = list(self._frags)
         self._files = kt.kept_files(sweep_dir, KIND)
-        self._fresh: list[pa.Table] = []
+        self._fresh: list[tuple[set[str], pa.Table]] = []  # (its keys, lead rows) computed
         listed = set().union(*self._files.values()) if self._files else set()
         self._compute([k for k in self.keys if k not in listed])
         self._whole: pd.DataFrame | None = None
@@ -171,7 +171,7 @@ class LeadRows:
         path = kt.keep(self.sweep_dir, KIND, table, todo)
         if path is not None:
             self._files[path] = set(todo)
-        self._fresh.append(table)
+        self._fresh.append((set(todo), table))
         return table
 
     def table(self, keys: list[str] | None = None, columns: list[str] | None = None) -> pa.Table:
@@ -179,11 +179,13 @@ class LeadRows:
         :data:`~experiments.kept_tables.FRAGMENT`; ``columns``: only these (and it)."""
         keys = self.keys if keys is None else keys
         tables, found = [], set()
-        for fresh in self._fresh:
-            wanted = pa.array(sorted(set(keys) - found), pa.string())
-            part = fresh.filter(pc.is_in(fresh[FRAGMENT], wanted))
-            tables.append(part if columns is None else part.select([*columns, FRAGMENT]))
-            found.update(pc.unique(part[FRAGMENT]).to_pylist())
+        for held, fresh in self._fresh:  # columns taken first: a filter copies each one
+            wanted = (held & set(keys)) - found
+            part = fresh if columns is None else fresh.select([*columns, FRAGMENT])
+            if wanted != held:
+                part = part.filter(pc.is_in(part[FRAGMENT], pa.array(sorted(wanted), pa.string())))
+            tables.append(part)
+            found |= wanted
         kept, got = kt.kept_rows(self._files, [k for k in keys if k not in found], columns)
         tables += kept
         found |= got
