@@ -181,6 +181,8 @@ class LeadRows:
         tables, found = [], set()
         for held, fresh in self._fresh:  # columns taken first: a filter copies each one
             wanted = (held & set(keys)) - found
+            if not wanted:
+                continue
             part = fresh if columns is None else fresh.select([*columns, FRAGMENT])
             if wanted != held:
                 part = part.filter(pc.is_in(part[FRAGMENT], pa.array(sorted(wanted), pa.string())))

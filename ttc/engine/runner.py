@@ -68,14 +68,17 @@ def params_key(obj: Any) -> str:
     return json.dumps(dataclasses.asdict(obj), sort_keys=True, default=str)
 
 
+#: The fields of :class:`~ttc.settings.Settings` the cached stages depend on: every field
+#: but :data:`DOWNSTREAM_AXES`.
+UPSTREAM_FIELDS = tuple(
+    f.name for f in dataclasses.fields(Settings) if f.name not in DOWNSTREAM_AXES
+)
+
+
 def upstream_key(settings: Settings) -> str:
-    """What the cached stages of a setting depend on: every field but
-    :data:`DOWNSTREAM_AXES` (settings with equal keys are streamed once)."""
-    fields = {
-        f.name: getattr(settings, f.name)
-        for f in dataclasses.fields(settings)
-        if f.name not in DOWNSTREAM_AXES
-    }
+    """What the cached stages of a setting depend on: its :data:`UPSTREAM_FIELDS` (settings
+    with equal keys are streamed once)."""
+    fields = {name: getattr(settings, name) for name in UPSTREAM_FIELDS}
     return json.dumps(
         {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v for k, v in fields.items()},
         sort_keys=True,
@@ -86,12 +89,6 @@ def upstream_key(settings: Settings) -> str:
 def member_keys(settings: Settings) -> dict[str, str]:
     """:func:`params_key` of each of a setting's :data:`STEP_AXES`, made once."""
     return {axis: params_key(getattr(settings, axis)) for axis in STEP_AXES}
-
-
-#: The fields of :class:`~ttc.settings.Settings` that :func:`upstream_key` reads.
-UPSTREAM_FIELDS = tuple(
-    f.name for f in dataclasses.fields(Settings) if f.name not in DOWNSTREAM_AXES
-)
 
 
 def setting_keys(settings: Sequence[Settings]) -> tuple[list[str], list[dict[str, str]]]:
