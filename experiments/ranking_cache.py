@@ -97,7 +97,8 @@ def lead_counts(lead: LeadRows) -> dict[str, pd.DataFrame]:
     counted, counts = _kept_counts(path, key)
     if not set(counted) <= set(lead.keys):  # a fragment counted is no longer live
         counted, counts = [], {}
-    new = [k for k in lead.keys if k not in set(counted)]
+    done = set(counted)
+    new = [k for k in lead.keys if k not in done]
     if not new:
         return counts
     more = stage_time_counts(lead.frame(new, columns))

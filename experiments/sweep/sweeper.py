@@ -222,9 +222,10 @@ class SweepSweeper(Sweeper):
 
     def plan(self, batch: Sequence[Sequence[str]], sweep_dir: Path) -> Plan:
         """The plan of ``batch`` (:func:`experiments.sweep.plan.make_plan`, after validation:
-        its jobs to launch and the work left for while they run), printed. A sweep planned before with the same jobs, config, config files
-        and code (:func:`experiments.sweep.plan.plan_key`) whose every run is complete launches
-        nothing without composing a config."""
+        its jobs to launch and the work left for while they run), printed. A sweep planned
+        before with the same jobs, config, config files and code
+        (:func:`experiments.sweep.plan.plan_key`) whose every run is complete launches nothing
+        without composing a config."""
         from experiments.sweep import plan as planning  # noqa: PLC0415 (pandas, OpenCV)
         from experiments.sweep.finished import remember_command  # noqa: PLC0415
 
