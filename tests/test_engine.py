@@ -175,6 +175,48 @@ def test_a_frames_lidar_association_is_kept_for_the_next_runs_of_the_process(
     assert not rows[2]["lidar_points_curr"].equals(rows[0]["lidar_points_curr"])
 
 
+def test_pair_details_take_a_frames_lidar_association_kept_by_the_process(
+    data_dir: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """Drive 0009 frames 0-2, as a report asks: the details of two pairs sharing frame 1, on
+    two settings sharing the lidar shrink, associate each frame once; a third setting with
+    another shrink associates its own; every detail's rows and arrays are those of a cache that
+    keeps nothing in memory."""
+    import dataclasses
+
+    from experiments.config import prepared_frame_range
+    from ttc.engine import cache as stage_cache
+    from ttc.engine import pair_steps
+
+    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())  # this test's own
+    calls = []
+    real = pair_steps.associate_objects
+    monkeypatch.setattr(pair_steps, "associate_objects",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))  # fmt: skip
+    data = ["dataset=kitti_raw_0009", "dataset.last=2"]
+    base = settings_from_config(composed(data))
+    frames = prepared_frame_range(composed(data))
+    zscore = dataclasses.replace(base.keypoint_filter, name="zscore")
+    runs = [base, dataclasses.replace(base, keypoint_filter=zscore),
+            dataclasses.replace(base, lidar_shrink=0.2)]  # fmt: skip
+    kept = StageCache(tmp_path)
+    details = [pair_detail(s, frames, p, p + 1, kept) for s in runs for p in (0, 1)]
+    assert len(calls) == 3 + 3  # frames 0-2, once per shrink
+    untimed = [c for c in details[0].rows if c.startswith(("ms_", "cached_"))]
+    plain = StageCache(tmp_path, memory_mb=0)
+    for got, (s, p) in zip(details, [(s, p) for s in runs for p in (0, 1)], strict=True):
+        alone = pair_detail(s, frames, p, p + 1, plain)
+        pd.testing.assert_frame_equal(got.rows.drop(columns=untimed),
+                                      alone.rows.drop(columns=untimed))  # fmt: skip
+        for name in ("lane_uv", "lane_owner"):
+            mine, theirs = getattr(got, name), getattr(alone, name)
+            assert mine.keys() == theirs.keys()
+            assert all(np.array_equal(mine[i], theirs[i]) for i in mine)
+        assert got.lead_box == alone.lead_box
+    assert len(calls) == 6 + 2 * 6  # the plain cache's details each associate both frames
+    assert not details[4].rows["lidar_points_curr"].equals(details[0].rows["lidar_points_curr"])
+
+
 def test_a_box_pairs_lidar_ttc_is_kept_for_the_other_camera_stages_of_the_process(
     data_dir: Path, tmp_path: Path, monkeypatch
 ) -> None:

@@ -252,7 +252,9 @@ def pair_detail(
     pictures and explanations); raises the pair's :class:`ttc.io.frames.FrameDataError`.
     ``read``: the pair's two images (H × W × 3 BGR) from their file or bag message
     (:func:`ttc.io.frames.read_image`; a caller asking for many pairs can share the frames
-    read)."""
+    read). Each frame's lidar association and each box pair's lidar TTC are kept in
+    ``cache``'s memory for the other pairs and runs of the process, as a sweep's are
+    (:class:`~ttc.engine.pair_steps.PairSteps`)."""
     check_setting(settings)
     cache = cache if cache is not None else StageCache(None)
     calib = load_calibration(frames.sequence_dir, frames.projection)
@@ -263,7 +265,8 @@ def pair_detail(
     if broken:
         raise next(iter(broken.values()))
     parts = RowParts()
-    shared = PairSteps(pair, calib, dt, prev, curr, per_frame, matches[(prev, curr)], parts)
+    shared = PairSteps(pair, calib, dt, prev, curr, per_frame, matches[(prev, curr)], parts,
+                       cache=cache)  # fmt: skip
     detail: dict[str, Any] = {}
     rows = parts.table([(0, [shared.rows(settings, member_keys(settings), detail)])])
     empty = np.zeros(0, dtype=np.int64)
