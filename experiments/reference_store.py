@@ -150,6 +150,7 @@ def recording_boxes(
     names = coco_names(settings.objects)
     parts = []
     for index in frames:
+        stages.forget(keep=index)  # the frames done: their boxes and scans freed as it goes
         obj, lid = (cache.get(t).arrays for t in (stages.objects(index), stages.lidar(index)))
         roi = obj["roi"]
         near = associate_objects(lid["object_points"], calib.velo_to_image, roi,

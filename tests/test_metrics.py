@@ -223,6 +223,30 @@ def test_rank_breaks_ties_by_computing_time_not_cache_order():
     assert ev.rank_runs(m, "camera")["run_id"].tolist() == ["r1", "r0"]
 
 
+def test_replicate_ranks_are_each_replicates_own_ranking():
+    """:func:`ttc.evaluation.ranking.ranks` of many replicates (rows, ranked a few at a time)
+    are each row ranked on its own by the rule: invalid rate, median MiD (NaN last), time,
+    then position; checked against Python's sort of each row's keys."""
+    from ttc.evaluation.ranking import RANK_ROWS, ranks
+
+    rng = np.random.default_rng(1)
+    shape = (3 * RANK_ROWS + 5, 40)  # a last chunk of 5 rows
+    invalid = rng.integers(0, 3, shape) / 2.0
+    mid = rng.integers(0, 5, shape).astype(float)
+    mid[mid == 4] = np.nan
+    ms = rng.integers(0, 3, shape).astype(float)
+    got = ranks(invalid, mid, ms)
+    assert got.shape == shape and got.dtype == np.int64
+    for i in range(shape[0]):
+        keys = [(invalid[i, j], np.inf if np.isnan(mid[i, j]) else mid[i, j], ms[i, j], j)
+                for j in range(shape[1])]  # fmt: skip
+        order = sorted(range(shape[1]), key=keys.__getitem__)
+        want = np.empty(shape[1], dtype=np.int64)
+        want[order] = np.arange(1, shape[1] + 1)
+        assert np.array_equal(got[i], want), i
+    assert ranks(invalid[:0], mid[:0], ms[:0]).shape == (0, shape[1])
+
+
 def test_hand_table_ranking(metrics):
     ranked = ev.rank_runs(metrics.reset_index(), "camera")
     # A and C have no invalid frame and MiD median 0; B one invalid frame

@@ -17,6 +17,7 @@ from experiments.report.header import provenance_markdown
 from experiments.report.judged_rows import camera_runs
 from experiments.report.load import Context, SweepData
 from experiments.report.plots import plot_breakdown, plot_objects, save_figure
+from ttc.evaluation.errors import rows_of_runs
 from ttc.evaluation.object_errors import (
     breakdown,
     judge_objects,
@@ -46,7 +47,8 @@ def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.Da
     out.mkdir(parents=True, exist_ok=True)
     write_csv(reference_objects_table(reference), out / "reference_objects.csv")
     labels = camera_runs(data.runs)
-    judged = judge_objects(data.boxes[data.boxes["run_id"].isin(labels.index)], reference)
+    # the box pairs of those runs: all of them as the load keeps them (not copied then)
+    judged = judge_objects(rows_of_runs(data.boxes, labels.index), reference)
     judged["setting"] = judged["run_id"].map(labels)
     write_csv(object_metrics(judged, ["setting", "role", "ttc_bin"]), out / "objects.csv")
     ranking = track_bootstrap_ranks(judged)
