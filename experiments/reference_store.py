@@ -20,7 +20,7 @@ from ttc.engine.stages import FrameStages
 from ttc.evaluation import lead_distance, lead_status
 from ttc.evaluation import reference as reference_module
 from ttc.evaluation.object_reference import object_reference
-from ttc.features.objects import coco_names
+from ttc.features.objects import clear_detector_cache, coco_names
 from ttc.io.calibration import load_calibration
 from ttc.io.ego_motion import EGO_SPEED
 from ttc.io.frames import (
@@ -167,6 +167,10 @@ def recording_boxes(
             "distance_m": near.distance_m, "object_points": near.n_points, "bearing_deg": bearing,
             "is_lead": np.arange(len(roi)) == lead,
         }))  # fmt: skip
+    # the frames no sweep ran (the margins) were detected here: YOLOv3-tiny is not held for
+    # the caller's later steps (≈ 0.2 GB through a report's "every object" step, its peak;
+    # 19 ms to load again where another detection needs it)
+    clear_detector_cache()
     times = read_frame_times(sequence_dir)
     if times is None:
         times = np.arange(frames[-1] + 1) * frame_interval()

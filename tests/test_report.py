@@ -200,6 +200,30 @@ def test_fp6_report_on_a_camera_grid(grid_report: Path, camera_grid) -> None:
     assert "| kitti_0_18 | median |" in (grid_report / "fp5_lidar.md").read_text()
 
 
+def test_a_report_holds_no_detector_network_after_the_objects_reference(
+    camera_grid, grid_report: Path, tmp_path: Path, monkeypatch
+) -> None:
+    """A report whose steps detect objects (an empty stage cache: every frame's boxes
+    computed again) loads YOLOv3-tiny and does not hold it once the objects' reference is
+    made (≈ 0.2 GB through the "every object" report's peak otherwise); its tables are those
+    of the report made with the sweep's cache."""
+    from experiments.report.cli import build_report
+    from ttc.features import objects
+
+    objects.clear_detector_cache()
+    loaded = []
+    real = objects.read_darknet
+    monkeypatch.setattr(objects, "read_darknet", lambda *a: loaded.append(a) or real(*a))
+    root, sweep = camera_grid
+    out = tmp_path / "report"
+    build_report([sweep], out, cache_dir=tmp_path / "empty-cache", pictures=False, html=False,
+                 log=lambda _: None)  # fmt: skip
+    assert loaded, "no step detected objects: the test did not load the network"
+    assert objects._cached_net.cache_info().currsize == 0
+    for name in ("fp6_camera_ttc.csv", "fp6_ranking.csv", "objects.csv"):
+        assert (out / name).read_bytes() == (grid_report / name).read_bytes(), name
+
+
 def test_crop_scale_reaches_the_width_without_shrinking() -> None:
     for width in (40, 120, 300, 450, 900, 1242):
         scale = crop_scale(width, 900)
