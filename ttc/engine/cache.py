@@ -46,13 +46,8 @@ except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process lo
 Arrays = dict[str, np.ndarray]
 #: Suffix of an entry's file (:mod:`ttc.engine.entry_file`).
 SUFFIX = ".arr"
-#: Default memory budget of a process's recently used entries (MB; 0 disables). A frame's
-#: entries of one upstream setting are ≈ 1–2 MB (SIFT's descriptors and matches the most), so
-#: 96 MB holds a few settings' frames: ``grand`` 0–18 cold on 2 cores, alternated with 256 MB,
-#: 74.4 / 72.9 against 74.3 / 71.2 s and its peak PSS 1,961 against 2,274–2,282 MB (each
-#: worker filled its budget); ``fp6_grid`` cold 36.3 / 36.4 against 38.0 / 35.3 s; a served
-#: ``grand`` re-run 12.4 / 13.1 against 12.9 / 14.1 s.
-MEMORY_MB = 96
+#: Default memory budget of a process's recently used entries (MB; 0 disables).
+MEMORY_MB = 256
 
 
 def _nbytes(arrays: Arrays) -> int:
