@@ -95,12 +95,16 @@ def is_in(values: pd.Series, ids: Collection[str]) -> np.ndarray:
     return found[codes]
 
 
-def rows_of_runs(frames: pd.DataFrame, run_ids) -> pd.DataFrame:
-    """The rows of ``frames`` whose ``run_id`` is in ``run_ids``, index kept: ``frames``
-    itself when that is every row (a shallow copy, pandas copies on write: a report's
-    judged rows are not copied whole for a selection of all of them)."""
-    mask = is_in(frames["run_id"], run_ids)
+def rows_where(frames: pd.DataFrame, mask: np.ndarray) -> pd.DataFrame:
+    """The rows of ``frames`` where ``mask`` ((n,) bool), index kept: ``frames`` itself when
+    that is every row (a shallow copy, pandas copies on write: a report's judged rows are not
+    copied whole for a selection of all of them)."""
     return frames.copy(deep=False) if mask.all() else frames[mask]
+
+
+def rows_of_runs(frames: pd.DataFrame, run_ids) -> pd.DataFrame:
+    """The rows of ``frames`` whose ``run_id`` is in ``run_ids`` (:func:`rows_where`)."""
+    return rows_where(frames, is_in(frames["run_id"], run_ids))
 
 
 #: The estimates of a lead row stand-in (a frame pair whose run has no lead row): blanked.

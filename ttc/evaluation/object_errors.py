@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import kendalltau
 
-from ttc.evaluation.errors import estimated_ratio, mid_error
+from ttc.evaluation.errors import estimated_ratio, mid_error, rows_where
 from ttc.evaluation.ranking import in_row_chunks
 from ttc.evaluation.ttc_bins import OBJECT_TTC_BIN_EDGES_S, OBJECT_TTC_BINS, ttc_bin
 
@@ -36,8 +36,7 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
     at 1, an invalid estimate 1: bounded, so a setting invalid on half the pairs is not tied
     with every other one at +inf; the all-object ranking takes its mean)."""
     matched = ((rows["prev_box"] >= 0) & (rows["curr_box"] >= 0)).to_numpy(dtype=bool)
-    # every row as it is when all are matched pairs (a report's are): not copied whole
-    pairs = rows.copy(deep=False) if matched.all() else rows[matched]
+    pairs = rows_where(rows, matched)  # a report's are all matched pairs: not copied whole
     ref = reference[[c for c in _REFERENCE if c in reference]].rename(
         columns={"box": "curr_box", "track_id": "ref_track_id"}
     )
