@@ -69,6 +69,29 @@ def test_recent_entries_are_served_from_memory_read_only_within_budget(tmp_path:
     assert small.load("stage", big) is None
 
 
+def test_derived_work_outlives_a_stream_of_entries_beyond_their_budget(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """Entries (read again from their files when evicted) and derived work (computed again)
+    are kept in pools of their own: a job streaming more entries than the entries' budget
+    evicts the oldest entries, never the derived work."""
+    from ttc.engine import cache as stage_cache
+
+    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())  # this test's own
+    cache = StageCache(tmp_path, memory_mb=3 * 800 / 2**20)  # three 800-byte entries
+    kept = cache.keep(("association", 0), {"points": np.arange(100.0)})  # 800 bytes
+    calls: list[int] = []
+    keys = [cache_key("stage", i) for i in range(5)]
+    for i, key in enumerate(keys):  # 5 entries of 100 float64 streamed through
+        cache.get(Task("stage", key, lambda i=i: calls.append(1) or {"a": np.full(100, i * 1.0)}))
+    assert cache.recent(("association", 0)) is kept
+    for key in keys:  # every entry still on disk
+        cache.path("stage", key).unlink()
+    in_memory = [cache.load("stage", key) is not None for key in keys]
+    assert in_memory == [False, False, True, True, True]  # the last three, within budget
+    assert StageCache(tmp_path, memory_mb=0).recent(("association", 0)) is None  # keeps none
+
+
 def test_entry_with_foreign_key_is_rejected(tmp_path: Path) -> None:
     cache = StageCache(tmp_path, memory_mb=0)
     calls: list[int] = []

@@ -7,8 +7,9 @@ A worker restores the sweep's shared state (Hydra context, master config, task f
 Hydra's singletons) once per sweep, not once per job: the stock joblib launcher pickles it
 again for every job and the worker re-discovers every Hydra plugin when it restores it.
 
-A worker's memory grows by design after its first call: the stage cache keeps up to 256 MB
-of entries (:data:`ttc.engine.cache.MEMORY_MB`), the grey images up to 64 MB, and models
+A worker's memory grows by design after its first call: the stage cache keeps up to 96 MB
+of entries and 64 MB of derived work (:data:`ttc.engine.cache.MEMORY_MB`,
+:data:`~ttc.engine.cache.DERIVED_MB`), the grey images up to 64 MB, and models
 load on first use. loky takes a worker whose memory grew by more than 300 MB since its first
 call for a leaking one and replaces it mid-sweep, with a ``UserWarning: A worker stopped
 while some jobs were given to the executor`` (a cold ``fp6_grid``: both workers grew from

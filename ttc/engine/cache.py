@@ -18,6 +18,10 @@ Each process also keeps the entries it loaded or computed most recently in memor
 ``memory_mb``, least recently used out first), as read-only arrays: a worker that runs many
 settings in a row loads the frames' objects, lane points and shared keypoints once. An entry's
 key names the content of its input files and parameters, so a kept entry cannot go stale.
+Work derived from entries and never written (:meth:`StageCache.keep`: each frame's lidar
+association, each box pair's lidar TTC) is kept in a pool of its own (up to
+:data:`DERIVED_MB`): an evicted entry is read again from its file in milliseconds, evicted
+derived work is computed again, so the entries a job streams never push it out.
 """
 
 from __future__ import annotations
@@ -46,8 +50,12 @@ except ImportError:  # pragma: no cover - non-POSIX systems: no cross-process lo
 Arrays = dict[str, np.ndarray]
 #: Suffix of an entry's file (:mod:`ttc.engine.entry_file`).
 SUFFIX = ".arr"
-#: Default memory budget of a process's recently used entries (MB; 0 disables).
-MEMORY_MB = 256
+#: Default memory budget of a process's recently used entries (MB; 0 disables): what a
+#: worker keeps of the frames its jobs stream (``grand`` 0-18: 270 MB of entries in all).
+MEMORY_MB = 96
+#: Memory budget of a process's derived work (MB; :meth:`StageCache.keep`): ``grand``
+#: 0-18 keeps ≈ 2.3 MB of it per worker, a 78-frame sweep ≈ 9 MB per lidar setting.
+DERIVED_MB = 64
 
 
 def _nbytes(arrays: Arrays) -> int:
@@ -56,36 +64,43 @@ def _nbytes(arrays: Arrays) -> int:
 
 class RecentArrays:
     """Least-recently-used sets of arrays of this process (by any hashable name), bounded by
-    their bytes; kept arrays are read-only."""
+    their bytes per *pool* (each pool its own order and budget); kept arrays are read-only."""
 
     def __init__(self) -> None:
-        self.entries: OrderedDict[Hashable, Arrays] = OrderedDict()
-        self.nbytes = 0
+        self.pools: dict[str, OrderedDict[Hashable, Arrays]] = {}
+        self.nbytes: dict[str, int] = {}
 
-    def get(self, name: Hashable) -> Arrays | None:
-        arrays = self.entries.get(name)
+    def get(self, name: Hashable, pool: str = "") -> Arrays | None:
+        entries = self.pools.get(pool)
+        arrays = entries.get(name) if entries is not None else None
         if arrays is not None:
-            self.entries.move_to_end(name)
+            entries.move_to_end(name)
         return arrays
 
-    def put(self, name: Hashable, arrays: Arrays, budget: int) -> Arrays:
-        """Keep ``arrays`` (made read-only) and return them; evict beyond ``budget`` bytes."""
+    def put(self, name: Hashable, arrays: Arrays, budget: int, pool: str = "") -> Arrays:
+        """Keep ``arrays`` (made read-only) in ``pool`` and return them; evict the pool's
+        least recently used beyond ``budget`` bytes."""
         arrays = {field: np.asarray(value) for field, value in arrays.items()}  # as loaded
         for array in arrays.values():
             array.flags.writeable = False
         size = _nbytes(arrays)
         if size > budget:
             return arrays
-        if name in self.entries:
-            self.nbytes -= _nbytes(self.entries.pop(name))
-        self.entries[name] = arrays
-        self.nbytes += size
-        while self.nbytes > budget:
-            self.nbytes -= _nbytes(self.entries.popitem(last=False)[1])
+        entries = self.pools.setdefault(pool, OrderedDict())
+        held = self.nbytes.get(pool, 0)
+        if name in entries:
+            held -= _nbytes(entries.pop(name))
+        entries[name] = arrays
+        held += size
+        while held > budget:
+            held -= _nbytes(entries.popitem(last=False)[1])
+        self.nbytes[pool] = held
         return arrays
 
 
 _RECENT = RecentArrays()
+#: The pool of :data:`_RECENT` holding derived work (:meth:`StageCache.keep`).
+DERIVED = "derived"
 #: Cache folders this process found unwritable (warned once each).
 _UNWRITABLE: set[str] = set()
 
@@ -126,6 +141,8 @@ class StageCache:
         self.directory = Path(directory) if directory is not None else None
         self.enabled = enabled and directory is not None
         self.memory_bytes = int(memory_mb * 2**20) if self.enabled else 0
+        # a cache keeping no entries in memory keeps no derived work either
+        self.derived_bytes = int(DERIVED_MB * 2**20) if self.memory_bytes else 0
         self.corrupt_entries = 0
         self.writable = self.enabled and str(self.directory) not in _UNWRITABLE
 
@@ -165,14 +182,14 @@ class StageCache:
     def recent(self, name: Hashable) -> Arrays | None:
         """Arrays this process kept under ``name`` (:meth:`keep`), or None: work derived from
         cached entries and shared by the jobs a worker runs, never written to disk."""
-        return _RECENT.get(("derived", name)) if self.memory_bytes else None
+        return _RECENT.get(name, DERIVED) if self.derived_bytes else None
 
     def keep(self, name: Hashable, arrays: Arrays) -> Arrays:
         """Keep ``arrays`` in this process's memory under ``name`` (a name that holds the keys
         of every input, so it cannot go stale); the read-only arrays kept."""
-        if not self.memory_bytes:
+        if not self.derived_bytes:
             return arrays
-        return _RECENT.put(("derived", name), arrays, self.memory_bytes)
+        return _RECENT.put(name, arrays, self.derived_bytes, DERIVED)
 
     def store(self, stage: str, key: str, arrays: Arrays) -> None:
         """Write an entry atomically (temporary file + rename)."""
