@@ -49,6 +49,33 @@ def cache(tmp_path_factory) -> StageCache:
     return StageCache(tmp_path_factory.mktemp("cache"))
 
 
+def _counted(monkeypatch, name: str) -> list[int]:
+    """A list growing by one per call of ``ttc.engine.pair_steps.<name>`` in this test, which
+    gets a process memory of its own (nothing kept by an earlier test)."""
+    from ttc.engine import cache as stage_cache
+    from ttc.engine import pair_steps
+
+    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())
+    calls: list[int] = []
+    real = getattr(pair_steps, name)
+    monkeypatch.setattr(pair_steps, name, lambda *a, **k: calls.append(1) or real(*a, **k))
+    return calls
+
+
+def _three_shrink_runs(data: list[str]) -> tuple[FrameRange, list]:
+    """The frames of ``data``'s config and three settings of it: as composed, with the
+    ``zscore`` keypoint filter (the same lidar work) and with ``lidar_shrink=0.2`` (its own)."""
+    import dataclasses
+
+    from experiments.config import prepared_frame_range
+
+    base = settings_from_config(composed(data))
+    zscore = dataclasses.replace(base.keypoint_filter, name="zscore")
+    runs = [base, dataclasses.replace(base, keypoint_filter=zscore),
+            dataclasses.replace(base, lidar_shrink=0.2)]  # fmt: skip
+    return prepared_frame_range(composed(data)), runs
+
+
 def test_batch_reproduces_the_committed_fp6_series(kitti_dir: Path, cache: StageCache) -> None:
     committed = pd.read_csv(COMMITTED / "fp6_camera_ttc.csv")
     settings = [settings_from_config(composed(_overrides(s))) for s in FP6_SETTINGS]
@@ -149,22 +176,8 @@ def test_a_frames_lidar_association_is_kept_for_the_next_runs_of_the_process(
     """Drive 0009 frames 0-4: a frame's association (every box's own points) is computed
     once per process for the runs that share its boxes, points and shrink; a run with another
     shrink gets its own; rows are those of a cache that keeps nothing in memory."""
-    import dataclasses
-
-    from experiments.config import prepared_frame_range
-    from ttc.engine import cache as stage_cache
-    from ttc.engine import pair_steps
-
-    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())  # this test's own
-    calls = []
-    real = pair_steps.associate_objects
-    monkeypatch.setattr(pair_steps, "associate_objects",
-                        lambda *a, **k: calls.append(1) or real(*a, **k))  # fmt: skip
-    base = settings_from_config(composed(["dataset=kitti_raw_0009", "dataset.last=4"]))
-    frames = prepared_frame_range(composed(["dataset=kitti_raw_0009", "dataset.last=4"]))
-    zscore = dataclasses.replace(base.keypoint_filter, name="zscore")
-    runs = [base, dataclasses.replace(base, keypoint_filter=zscore),
-            dataclasses.replace(base, lidar_shrink=0.2)]  # fmt: skip
+    calls = _counted(monkeypatch, "associate_objects")
+    frames, runs = _three_shrink_runs(["dataset=kitti_raw_0009", "dataset.last=4"])
     kept = StageCache(tmp_path)
     rows = [run_settings([s], frames, kept)[0] for s in runs]  # one job each, as workers do
     assert len(calls) == 2 * 5  # frames 0-4, once per shrink
@@ -182,23 +195,8 @@ def test_pair_details_take_a_frames_lidar_association_kept_by_the_process(
     two settings sharing the lidar shrink, associate each frame once; a third setting with
     another shrink associates its own; every detail's rows and arrays are those of a cache that
     keeps nothing in memory."""
-    import dataclasses
-
-    from experiments.config import prepared_frame_range
-    from ttc.engine import cache as stage_cache
-    from ttc.engine import pair_steps
-
-    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())  # this test's own
-    calls = []
-    real = pair_steps.associate_objects
-    monkeypatch.setattr(pair_steps, "associate_objects",
-                        lambda *a, **k: calls.append(1) or real(*a, **k))  # fmt: skip
-    data = ["dataset=kitti_raw_0009", "dataset.last=2"]
-    base = settings_from_config(composed(data))
-    frames = prepared_frame_range(composed(data))
-    zscore = dataclasses.replace(base.keypoint_filter, name="zscore")
-    runs = [base, dataclasses.replace(base, keypoint_filter=zscore),
-            dataclasses.replace(base, lidar_shrink=0.2)]  # fmt: skip
+    calls = _counted(monkeypatch, "associate_objects")
+    frames, runs = _three_shrink_runs(["dataset=kitti_raw_0009", "dataset.last=2"])
     kept = StageCache(tmp_path)
     details = [pair_detail(s, frames, p, p + 1, kept) for s in runs for p in (0, 1)]
     assert len(calls) == 3 + 3  # frames 0-2, once per shrink
@@ -224,13 +222,8 @@ def test_a_box_pairs_lidar_ttc_is_kept_for_the_other_camera_stages_of_the_proces
     detectors (other groups, other jobs) take it from the process's memory; another lidar
     estimator computes its own; rows are those of a cache that keeps nothing in memory."""
     from experiments.config import prepared_frame_range
-    from ttc.engine import cache as stage_cache
-    from ttc.engine import pair_steps
 
-    monkeypatch.setattr(stage_cache, "_RECENT", stage_cache.RecentArrays())  # this test's own
-    calls = []
-    real = pair_steps.lidar_ttc
-    monkeypatch.setattr(pair_steps, "lidar_ttc", lambda *a, **k: calls.append(1) or real(*a, **k))
+    calls = _counted(monkeypatch, "lidar_ttc")
     data = ["dataset=kitti_raw_0009", "dataset.last=4", "descriptor=brief"]
     frames = prepared_frame_range(composed(data))
     runs = [settings_from_config(composed([*data, *extra]))
