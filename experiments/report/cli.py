@@ -120,12 +120,12 @@ def build_report(
         lap("fp6")
         fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
         lap("fp7")
-        if has_rows:
-            objects_report.recording_objects_report(data, ctx, out)
+        objects = objects_report.recording_objects_report(data, ctx, out) if has_rows else None
         lap("objects")
         index = (
-            html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables) if html else None
-        )
+            html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables,
+                        objects_ranking=objects) if html else None
+        )  # fmt: skip
         lap("html")
         times["total"] = time.perf_counter() - start
         summary = {"metrics": written, "out": out, "times": times, "pair_details": ctx.calls,
@@ -168,7 +168,8 @@ def build_drives_report(
         fp7_tables = fp7.fp7_report(part, reference, folder)
         object_rankings[name] = objects_report.recording_objects_report(part, ctx, folder)
         if html:
-            html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables)
+            html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables,
+                        objects_ranking=object_rankings[name])  # fmt: skip
     objects_report.cross_recording_objects(object_rankings, out)
     table = drives_report.drives_report(data, references, out) if not data.frames.empty else None
     finding = None

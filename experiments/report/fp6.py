@@ -22,6 +22,7 @@ from experiments.report.plots import (
     save_figure,
 )
 from ttc import evaluation as ev
+from ttc.evaluation.verdict import has_lead, no_lead_sentence
 
 #: Way-off camera cases whose intermediate arrays are examined (≈ 30 ms each).
 MAX_EXAMINED = 60
@@ -162,6 +163,8 @@ def _tied_sentences(ranking: pd.DataFrame) -> list[str]:
     """Per dataset, one checkable sentence: how many settings are tied for first."""
     out = []
     for dataset, group in ranking.groupby("dataset", sort=True):
+        if not has_lead(group):  # no error to rank by: said first, by _no_lead_sentences
+            continue
         tied = group[group["rank_lo"] <= 1]
         out.append(
             f"**{dataset}: {len(tied)} of {len(group)} settings are statistically tied for "
@@ -169,6 +172,18 @@ def _tied_sentences(ranking: pd.DataFrame) -> list[str]:
             f"`fp6_ranking.csv`): {', '.join(tied['setting'])}."
         )
     return out
+
+
+def _no_lead_sentences(ranking: pd.DataFrame) -> list[str]:
+    """Per dataset without a judged lead, the sentence the report leads with: no error ranks
+    its settings, and the verdict it supports is the every-object ranking."""
+    return [
+        no_lead_sentence(str(dataset), group)
+        + " The verdict this recording supports is the every-object ranking: "
+        "[objects.md](objects.md)."
+        for dataset, group in ranking.groupby("dataset", sort=True)
+        if not has_lead(group)
+    ]
 
 
 def _way_off_paragraph(t: pd.DataFrame) -> str:
@@ -233,6 +248,7 @@ def fp6_markdown(
                          ref=worst["ttc_ref_s"].map(lambda v: format(v, ".2f")))  # fmt: skip
     parts = [
         provenance_markdown(data, "FP.6: camera TTC across detector / descriptor settings"),
+        *(f"{line}\n" for line in _no_lead_sentences(ranking)),
         "Camera TTC of the lead vehicle per frame for every camera setting in the sweeps, "
         f"judged against {against}.",
         "",

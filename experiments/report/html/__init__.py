@@ -25,13 +25,15 @@ import pandas as pd
 
 from experiments.report.encode import write_text
 from experiments.report.html import pages
+from experiments.report.html.objects_page import OBJECT_FIGURES, objects_page, verdict_paragraphs
 from experiments.report.html.page import write_assets
 from experiments.report.load import SweepData
 from ttc.atomic import write_bytes_atomic
 
 #: Figures of the markdown report shown on the HTML pages (copied into ``img/``).
 FIGURES = ("reference.png", "fp5_lidar_ttc.png", "fp6_heatmap.png", "fp6_ttc_series.png",
-           "fp6_pareto.png", "fp6_rank_intervals.png", "fp7_fusion_ttc.png")  # fmt: skip
+           "fp6_pareto.png", "fp6_rank_intervals.png", "fp7_fusion_ttc.png",
+           *OBJECT_FIGURES)  # fmt: skip
 
 
 #: ``fp5.html`` without an FP.5 report: no lidar estimate ran, or the sweep is judged against
@@ -39,6 +41,9 @@ FIGURES = ("reference.png", "fp5_lidar_ttc.png", "fp6_heatmap.png", "fp6_ttc_ser
 NO_FP5 = "No lidar estimate ran."
 NO_FP5_TRUTH = ("Judged against an exact truth: the lidar estimators per target TTC are on the "
                 '<a href="reference.html">truth page</a>.')  # fmt: skip
+
+#: ``objects.html`` of a report without an every-object ranking.
+NO_OBJECTS = "No object was judged: a generated recording, or no camera setting ran."
 
 #: Settings of a dataset given a page: the best and the worst of its ranking.
 BEST_PAGES, WORST_PAGES = 250, 50
@@ -72,11 +77,15 @@ def html_report(
     out: Path,
     fp7_tables: tuple[pd.DataFrame, pd.DataFrame] | None = None,
     truth_text: str | None = None,
+    objects_ranking: pd.DataFrame | None = None,
 ) -> Path:
     """Write the HTML report of the tables the markdown writers returned into ``out/html``
     (replacing an earlier one) and return its ``index.html``. The pictures and figures are
     those the markdown writers put in ``out``. ``truth_text``: the ``truth.md`` of a sweep
-    judged against an exact truth, shown as its reference page."""
+    judged against an exact truth, shown as its reference page. ``objects_ranking``: the
+    every-object ranking (``objects_ranking.csv`` rows) of a real recording, shown on
+    ``objects.html`` beside ``objects.md``; on a recording without a judged lead it is the
+    verdict ``index.html`` leads with."""
     folder = out / "html"
     shutil.rmtree(folder, ignore_errors=True)
     write_assets(folder, write_text)
@@ -87,7 +96,17 @@ def html_report(
     t, ranking = fp6_tables if fp6_tables is not None else (None, None)
     provenance = pages.provenance_block(data)
     paged = paged_settings(ranking) if ranking is not None and not ranking.empty else set()
-    write_text(pages.index_page(provenance, ranking, figures, paged), folder / "index.html")
+    verdict = verdict_paragraphs(ranking, objects_ranking)
+    write_text(pages.index_page(provenance, ranking, figures, paged, verdict),
+               folder / "index.html")  # fmt: skip
+    objects_md = out / "objects.md"
+    if objects_ranking is not None and objects_md.is_file():
+        text = objects_md.read_text(encoding="utf-8")
+        write_text(objects_page(provenance, text, objects_ranking, figures),
+                   folder / "objects.html")  # fmt: skip
+    else:
+        write_text(pages.page("every object", f"<p>{NO_OBJECTS}</p>", here="objects.html"),
+                   folder / "objects.html")  # fmt: skip
     if truth_text is None:
         write_text(pages.reference_page(provenance, reference, figures), folder / "reference.html")
     else:

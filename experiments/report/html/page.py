@@ -20,7 +20,8 @@ DT_LOADER = "assets/itables_dt.js"
 STYLE = "assets/report.css"
 
 NAV = (("index.html", "ranking"), ("fp6.html", "FP.6 camera"), ("fp5.html", "FP.5 lidar"),
-       ("fp7.html", "FP.7 fused"), ("reference.html", "reference"))  # fmt: skip
+       ("fp7.html", "FP.7 fused"), ("objects.html", "every object"),
+       ("reference.html", "reference"))  # fmt: skip
 
 CSS = """
 body { font: 14px/1.45 system-ui, sans-serif; margin: 0 auto; max-width: 1400px; padding: 0 16px;

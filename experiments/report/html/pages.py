@@ -97,11 +97,13 @@ def index_page(
     ranking: pd.DataFrame | None,
     figures: dict[str, str],
     paged: set[tuple[str, str]],
+    verdict: Sequence[str] = (),
 ) -> str:
-    """``index.html``: provenance, ranking rule, who is tied for first, the ranking table
-    (sortable, filterable; each setting in ``paged`` links to its page) and the
-    rank-interval figure."""
-    parts = [titled("TTC benchmark: ranking of the camera settings", provenance)]
+    """``index.html``: provenance, the ``verdict`` paragraphs (HTML; on a recording without a
+    judged lead, the every-object verdict it supports), ranking rule, who is tied for first,
+    the ranking table (sortable, filterable; each setting in ``paged`` links to its page) and
+    the rank-interval figure."""
+    parts = ["<h1>TTC benchmark: ranking of the camera settings</h1>", *verdict, provenance]
     if ranking is None or ranking.empty:
         parts.append('<p>No camera setting ran: see <a href="fp5.html">FP.5 lidar</a>.</p>')
         return page("ranking", "\n".join(parts), here="index.html")
