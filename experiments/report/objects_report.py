@@ -144,7 +144,7 @@ def recording_objects_report(data: SweepData, ctx: Context, out: Path) -> pd.Dat
     which has no objects besides its lead: None), its reference from
     :func:`experiments.reference_store.object_references`."""
     refs = object_references(data.frames, data.runs,
-                             lambda run_id: ctx.setup(data.runs, run_id),
+                             lambda run_id: ctx.detector_setup(data.runs, run_id),
                              ctx.root, ctx.cache)  # fmt: skip
     return objects_report(data, next(iter(refs.values())), out) if refs else None
 

@@ -22,6 +22,7 @@ from omegaconf import DictConfig
 
 from experiments import progress, store
 from experiments.config import prepared_frame_range
+from experiments.data.first_run import setting_models
 from experiments.records import now, peak_rss_mb, record_head, row_statistics
 from experiments.sweep.compose import core_settings
 from experiments.sweep.plan import read_plan
@@ -85,6 +86,8 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
     rows = pd.DataFrame()
     try:
         frames = prepared_frame_range(cfg)
+        for i in valid:  # each detector's files found (a copy the sweep downloaded)
+            setting_models(settings[i].objects)
         inputs = store.input_identities(input_files(settings[valid[0]], frames)) if valid else ""
         cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)
         rows, failed = run_settings([settings[i] for i in valid], frames, cache)
@@ -106,7 +109,7 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
         if record["status"] == "ok":
             record["inputs"] = inputs
             record["stages_computed"] = int(stats["computed"].get(i, 0))
-            record["n_frame_errors"] = 0
+            record["n_frame_errors"] = record["n_frames_lost"] = 0
             if i in stats["errors"]:  # rare: the rows of that run say which frames
                 row_statistics(record, rows[rows[MEMBER] == i])
     ok = {i for i, r in enumerate(records) if r["status"] == "ok"}

@@ -48,6 +48,7 @@ from hydra.types import HydraContext, TaskFunction
 from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
+from experiments.data.first_run import ensure_config_models
 from experiments.heap import freeze_alive
 from experiments.sweep.compose import Composer, variant_jobs
 from experiments.sweep.earlier import EarlierPlan
@@ -156,11 +157,13 @@ class SweepSweeper(Sweeper):
 
     def validate_batch_is_legal(self, batch: Sequence[Sequence[str]]) -> None:
         """Compose and validate :func:`validation_jobs` (the composer's configs: Hydra's
-        composition for a variant it has no part of, so a typo fails with Hydra's message)."""
+        composition for a variant it has no part of, so a typo fails with Hydra's message);
+        every detector's files are found (downloaded, once) before the workers need them."""
         composer = self._composer()
         validate = get_method(self.validator) if self.validator else None
         for overrides in validation_jobs(batch):
             with composer.shared_config(overrides) as cfg:
+                ensure_config_models(cfg.objects)
                 if validate is None:
                     continue
                 try:

@@ -27,6 +27,7 @@ from experiments.config import (
     settings_from_config,
     swept_overrides,
 )
+from experiments.data.first_run import setting_models
 from ttc.engine.cache import StageCache
 from ttc.engine.stages import shared_frame_tasks
 
@@ -49,7 +50,9 @@ def warm_up(master: DictConfig) -> None:
             return
         frames = prepared_frame_range(master)
         cache = StageCache(master.cache.dir)
-        tasks = shared_frame_tasks(settings_from_config(master), frames, cache)
+        settings = settings_from_config(master)
+        setting_models(settings.objects, allowed=False)  # a copy the sweep downloaded
+        tasks = shared_frame_tasks(settings, frames, cache)
         if master.dataset.get("generator") is None:  # the exact truth needs no reference
             from experiments.reference_store import reference_task  # noqa: PLC0415 (SciPy)
 

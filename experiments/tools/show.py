@@ -43,7 +43,7 @@ from experiments.config import (
     register_configs,
     settings_from_config,
 )
-from experiments.data.first_run import ensure_data, fail
+from experiments.data.first_run import ensure_data, ensure_setting_models, fail
 from experiments.report.encode import save_png
 from experiments.run import check_data
 from ttc import draw
@@ -173,6 +173,7 @@ def pair_pictures(detail: PairDetail, names: list[str], title: str) -> dict[str,
 def write_pictures(cfg: DictConfig) -> list[Path]:
     """Compute the frame and its pair under the configured setting and write the PNGs."""
     settings = settings_from_config(cfg)
+    ensure_setting_models(settings.objects)  # e.g. objects=ssd_mobilenet_v2's files
     frames = prepared_frame_range(cfg)  # dataset=scale_truth: its recording written first
     cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)
     frame, step = int(cfg.show.frame), int(cfg.dataset.step)

