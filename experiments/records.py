@@ -55,12 +55,31 @@ def with_run_columns(rows: pd.DataFrame, record: dict[str, Any]) -> pd.DataFrame
 
 def row_statistics(record: dict[str, Any], rows: pd.DataFrame) -> None:
     """Add what the rows of an ok run say to its record: stages computed (not from the
-    cache), frame pairs with ``frame_error`` (count, and the first three in the message)."""
+    cache), frame pairs with ``frame_error`` (count, and the first three in the message) and
+    the frames lost (:func:`lost_frames`: count, and which in the message)."""
     cached = rows[[c for c in rows if c.startswith("cached_")]].to_numpy()
     record["stages_computed"] = int((~cached).sum())
     errors = rows.loc[rows["error"] != "", ["frame", "error"]].drop_duplicates("frame")
     record["n_frame_errors"] = len(errors)
+    lost = lost_frames(rows)
+    record["n_frames_lost"] = len(lost)
     if len(errors):
-        record["message"] = f"{len(errors)} frame pair(s) with frame_error: " + "; ".join(
-            f"frame {f}: {e}" for f, e in errors.head(3).itertuples(index=False)
+        record["message"] = (
+            f"{len(errors)} frame pair(s) with frame_error, {len(lost)} frame(s) lost "
+            f"({', '.join(map(str, lost))}): "
+            + "; ".join(f"frame {f}: {e}" for f, e in errors.head(3).itertuples(index=False))
         )
+
+
+def lost_frames(rows: pd.DataFrame) -> list[int]:
+    """The frames every pair of which has a ``frame_error`` (a frame whose image or scan could
+    not be read costs both pairs it is in), ascending."""
+    pairs = rows[["prev_frame", "frame"]].drop_duplicates()
+    failed = rows.loc[rows["error"] != "", ["prev_frame", "frame"]].drop_duplicates()
+    if failed.empty:
+        return []
+    frames = pd.concat([pairs["prev_frame"], pairs["frame"]])
+    bad = pd.concat([failed["prev_frame"], failed["frame"]])
+    every = frames.value_counts()
+    broken = bad.value_counts().reindex(every.index, fill_value=0)
+    return sorted(int(f) for f in every.index[broken.to_numpy() == every.to_numpy()])

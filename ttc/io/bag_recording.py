@@ -142,10 +142,19 @@ def paired_scan(source: BagSource, frame: int) -> tuple[int | None, str]:
     candidates = range(max(at - 1, 0), min(at + 2, len(log)))
     if not candidates:
         return None, f"{lidar} has no messages"
-    gaps = {k: abs(header_stamp_ns(index, lidar, k) - stamp) for k in candidates}
+    gaps, damaged = {}, []
+    for k in candidates:
+        try:
+            gaps[k] = abs(header_stamp_ns(index, lidar, k) - stamp)
+        except FrameDataError as exc:  # a scan in a damaged chunk: not a candidate
+            damaged.append(exc.problem)
+    if not gaps:
+        return None, f"{image} #{frame}: every {lidar} scan near it is unreadable: {damaged[0]}"
     best = min(gaps, key=gaps.get)
     tolerance = scan_tolerance_s(source)
     if gaps[best] > tolerance * 1e9:
+        if damaged:  # the scan it would have had is in a damaged chunk: say that
+            return None, f"{image} #{frame}: its {lidar} scan is unreadable: {damaged[0]}"
         return None, (
             f"{image} #{frame}: no {lidar} scan within {tolerance * 1000:.1f} ms of its stamp "
             f"(nearest {gaps[best] / 1e6:.1f} ms); dataset.scan_tolerance_s sets the limit"
@@ -161,10 +170,15 @@ def frame_messages(source: BagSource, frame: int) -> tuple[BagMessage, BagMessag
 
 
 def unpaired_errors(source: BagSource, indices: list[int]) -> dict[int, FrameDataError]:
-    """A FrameDataError for each frame of ``indices`` without a scan within the tolerance."""
+    """A FrameDataError for each frame of ``indices`` without a scan within the tolerance, or
+    whose image stamp cannot be read (a damaged chunk: the error names it)."""
     out = {}
     for i in indices:
-        scan, why = paired_scan(source, i)
+        try:
+            scan, why = paired_scan(source, i)
+        except FrameDataError as exc:  # its own image unreadable (a damaged chunk)
+            out[i] = exc
+            continue
         if scan is None:
             out[i] = FrameDataError(source.path, why)
     return out

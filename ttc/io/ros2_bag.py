@@ -31,6 +31,7 @@ from mcap.records import MessageIndex
 from mcap.stream_reader import ReadDataStream
 from mcap.summary import Summary
 from mcap_ros2.decoder import DecoderFactory
+from zstandard import ZstdError  # mcap's own dependency: its chunks' compression
 
 from ttc.io.frame_errors import FrameDataError
 from ttc.io.mcap_recovery import IndexedReader, recover_summary
@@ -39,6 +40,8 @@ from ttc.io.ros2_msgs import stamp_ns
 METADATA = "metadata.yaml"
 #: What a damaged file raises inside the mcap library besides its own errors.
 _READ_ERRORS = (McapError, EOFError, struct.error, ValueError, KeyError, OSError, MemoryError)
+#: What a chunk whose compressed bytes are damaged raises: zstandard's error, lz4's RuntimeError.
+_CHUNK_ERRORS = (ZstdError, RuntimeError)
 
 
 @dataclass(frozen=True)
@@ -292,11 +295,38 @@ def read_message(index: BagIndex, topic: str, position: int) -> Any:
                 if key not in index.decoders:
                     index.decoders[key] = DecoderFactory().decoder_for("cdr", schema)
                 return index.decoders[key](message.data)
-    except (*_READ_ERRORS, IndexError, TypeError) as exc:
+    except (*_READ_ERRORS, *_CHUNK_ERRORS, IndexError, TypeError) as exc:
         raise FrameDataError(
-            path, f"{topic} #{position}: undecodable ({type(exc).__name__}: {exc})"
+            path,
+            f"{topic} #{position}: undecodable ({type(exc).__name__}: {exc})"
+            + damaged_chunk(index, file_no, topic, log, exc),
         ) from None
     raise FrameDataError(path, f"{topic} #{position} not found at log time {log}")
+
+
+def damaged_chunk(index: BagIndex, file_no: int, topic: str, log_ns: int, exc: Exception) -> str:
+    """Where a decompression error ``exc`` of a ``topic`` message logged at ``log_ns`` lies:
+    the chunk holding that topic at that time (its number in the file, byte offsets, log-time
+    range in seconds) whose bytes are damaged, and what that costs; empty for any other error."""
+    if not isinstance(exc, _CHUNK_ERRORS):
+        return ""
+    try:
+        summary = index.recovered.get(file_no) or index.reader(file_no).get_summary()
+    except (*_READ_ERRORS, *_CHUNK_ERRORS):
+        summary = None
+    if summary is None:
+        return ": a damaged chunk"
+    channels = {cid for cid, c in summary.channels.items() if c.topic == topic}
+    for k, c in enumerate(summary.chunk_indexes):
+        indexed = not c.message_index_offsets or channels & c.message_index_offsets.keys()
+        if indexed and c.message_start_time <= log_ns <= c.message_end_time:
+            return (
+                f": chunk {k} of the file (bytes {c.chunk_start_offset}-"
+                f"{c.chunk_start_offset + c.chunk_length}, log time "
+                f"{c.message_start_time / 1e9:.3f}-{c.message_end_time / 1e9:.3f} s) is damaged; "
+                "the messages logged in it are lost, the rest of the bag is read"
+            )
+    return ": a damaged chunk"
 
 
 def header_stamp_ns(index: BagIndex, topic: str, position: int) -> int:
@@ -319,9 +349,11 @@ def read_range(index: BagIndex, topic: str, start_ns: int, end_ns: int) -> list[
                 topics=[topic], starting_at=start_ns, ending_at=end_ns
             ):
                 out.append((message.log_time, decoded))
-        except (*_READ_ERRORS, IndexError, TypeError) as exc:
+        except (*_READ_ERRORS, *_CHUNK_ERRORS, IndexError, TypeError) as exc:
             raise FrameDataError(
-                path, f"{topic}: unreadable ({type(exc).__name__}: {exc})"
+                path,
+                f"{topic}: unreadable ({type(exc).__name__}: {exc})"
+                + damaged_chunk(index, no, topic, start_ns, exc),
             ) from None
     return out
 
