@@ -212,6 +212,8 @@ def object_references(
         if EGO_SPEED in mine and mine[EGO_SPEED].notna().any():
             per_frame = mine.groupby("frame")[EGO_SPEED].median()
             ego = per_frame.reindex(np.arange(len(times))).to_numpy(dtype=float)
-        ref = object_reference(boxes, times, width, ego)
+        first = frame_files(source, int(boxes["frame"].iloc[0])) if len(boxes) else None
+        height = read_image(first.image).shape[0] if first is not None else None
+        ref = object_reference(boxes, times, width, ego, image_height=height)
         out[sequence] = ref.assign(recording=recording_id(sequence))
     return out

@@ -20,7 +20,9 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
-from ttc.evaluation.reference import MIN_CLOSING_SPEED_MPS, POLYORDER, WINDOW, segment_reference
+from ttc.evaluation.difficulty import box_difficulty
+from ttc.evaluation.reference import MIN_CLOSING_SPEED_MPS
+from ttc.evaluation.track_ends import TRACK_COLUMNS, recording_noise, track_reference
 from ttc.steps.tracks import chain_tracks
 
 #: Least IoU (0–1) of two boxes of consecutive frames that are one object: a parked car
@@ -42,7 +44,8 @@ EDGE_PX = 4
 #: The columns of ``reference_objects.csv``, in order.
 REFERENCE_OBJECT_COLUMNS: tuple[str, ...] = (
     "recording", "frame", "track_id", "class", "role", "box_x", "box_y", "box_w", "box_h",
-    "distance_m", "distance_sd_m", "closing_speed_mps", "ttc_ref_s", "ttc_ref_sd_s",
+    "distance_m", "distance_sd_m", "closing_speed_mps", "ttc_ref_s", "ttc_ref_sd_s", "fit",
+    "difficulty", "occluded_share",
 )  # fmt: skip
 
 
@@ -152,70 +155,49 @@ def drop_jumps(track: pd.DataFrame, times: np.ndarray) -> np.ndarray:
     return np.where(np.abs(resid) > limit, np.nan, d)
 
 
-def _track_reference(track: pd.DataFrame, times: np.ndarray) -> pd.DataFrame:
-    """The lead's smoothing on one track (rows of consecutive frames, ``distance_m`` NaN
-    where not usable); frames outside the measured span get NaN."""
-    measured = track[np.isfinite(track["distance_m"])]
-    table = track[["frame", "distance_m"]].set_index("frame")
-    if len(measured) < 2:
-        out = table.assign(distance_smooth_m=np.nan, distance_sd_m=np.nan,
-                           closing_speed_mps=np.nan, ratio_ref=np.nan, ttc_ref_s=np.nan,
-                           ttc_ref_sd_s=np.nan, judgeable=False)  # fmt: skip
-        return out.reset_index()
-    lo, hi = int(measured["frame"].min()), int(measured["frame"].max())
-    span = table.loc[lo:hi]
-    ref = segment_reference(span, times[lo : hi + 1], WINDOW, POLYORDER, MIN_CLOSING_SPEED_MPS)
-    keep = ["frame", "distance_smooth_m", "distance_sd_m", "closing_speed_mps", "ratio_ref",
-            "ttc_ref_s", "ttc_ref_sd_s", "judgeable"]  # fmt: skip
-    out = table.reset_index().merge(ref[keep], on="frame", how="left")
-    out["judgeable"] = out["judgeable"].fillna(False).astype(bool)
-    return out
-
-
 def object_reference(
     boxes: pd.DataFrame,
     times: np.ndarray,
     image_width: int,
     ego_speed: np.ndarray | None = None,
+    image_height: int | None = None,
+    track_ends: bool = True,
 ) -> pd.DataFrame:
     """Reference of every tracked object.
 
     ``boxes``: one row per box and frame: ``frame``, ``box`` (index in its frame), ``class``
     (name), ``box_x``, ``box_y``, ``box_w``, ``box_h`` (px), ``distance_m`` (nearest face, m;
     NaN: no object points), ``is_lead`` (the ego lane's lead box). ``times``: seconds of every
-    frame (index = frame); ``image_width`` (px); ``ego_speed``: m/s per frame (index = frame),
-    None when unknown.
+    frame (index = frame); ``image_width`` and ``image_height`` (px; height None: a box is
+    truncated by the left and right borders only); ``ego_speed``: m/s per frame (index =
+    frame), None when unknown. ``track_ends``: False gives the smoothing's reference only
+    (no one-sided end fits, no noise borrowed from other tracks: the reference before
+    :mod:`ttc.evaluation.track_ends`).
 
     Returns one row per box: the input columns, ``track_id``, ``role``, ``edge_cut`` (box at
     the image's left/right edge: its distance unused), ``distance_raw_m`` (the measured
     nearest face), ``distance_m`` (smoothed, m), ``distance_sd_m``, ``closing_speed_mps``
     (mean over the pair ending at the frame), ``ratio_ref`` (the pair's distance ratio
     ``D(k−1) / D(k)``), ``ttc_ref_s`` (s; +inf when not closing),
-    ``ttc_ref_sd_s`` and ``judgeable`` (as the lead's reference).
+    ``ttc_ref_sd_s`` and ``judgeable`` (as the lead's reference), ``jump`` (its measured
+    distance left the track's line: not used), ``noise_sd_m`` (the
+    distance noise its standard deviations come from), ``fit``
+    (:data:`ttc.evaluation.track_ends.FITS`) and the box's KITTI level
+    (:func:`ttc.evaluation.difficulty.box_difficulty`: ``truncated``, ``occluded_share``,
+    ``occlusion``, ``difficulty``; the nearer box by its measured distance, else its
+    reference distance).
     """
     boxes = boxes.reset_index(drop=True).copy()
     boxes["track_id"] = reference_tracks(boxes) if len(boxes) else pd.Series(dtype=np.int64)
     right = boxes["box_x"] + boxes["box_w"]
     boxes["edge_cut"] = (boxes["box_x"] <= EDGE_PX) | (right >= image_width - EDGE_PX)
     boxes["distance_raw_m"] = boxes["distance_m"].astype(float)
-    usable = boxes["distance_raw_m"].where(~boxes["edge_cut"])
-    times = np.asarray(times, dtype=float)
-    parts, closing = [], {}
-    for tid, track in boxes.assign(distance_m=usable).groupby("track_id", sort=True):
-        track = track.sort_values("frame")
-        closing[tid] = median_closing_speed(track["frame"], track["distance_m"], times)
-        track["distance_m"] = drop_jumps(track, times)
-        parts.append(_track_reference(track, times).assign(
-            track_id=int(track["track_id"].iloc[0])))  # fmt: skip
-    ref_cols = ["distance_smooth_m", "distance_sd_m", "closing_speed_mps", "ratio_ref",
-                "ttc_ref_s", "ttc_ref_sd_s", "judgeable"]  # fmt: skip
-    if parts:
-        refs = pd.concat(parts)[["frame", "track_id", *ref_cols]]
-    else:
-        refs = pd.DataFrame(columns=["frame", "track_id", *ref_cols])
+    refs, closing = _references(boxes, np.asarray(times, dtype=float), track_ends)
     out = boxes.drop(columns="distance_m").merge(refs, on=["frame", "track_id"], how="left")
     out = out.rename(columns={"distance_smooth_m": "distance_m"})
     out["judgeable"] = out["judgeable"].fillna(False).astype(bool)
+    out["fit"] = out["fit"].fillna("")
+    out["jump"] = out["jump"].fillna(False).astype(bool)
     ego = None if ego_speed is None else np.asarray(ego_speed, dtype=float)
     roles = {}
     for tid, track in out.groupby("track_id"):
@@ -224,4 +206,41 @@ def object_reference(
         ego_mps = float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan")
         roles[tid] = track_role(closing[tid], ego_mps, bool(track["is_lead"].mean() > 0.5))
     out["role"] = out["track_id"].map(roles)
+    nearer = out.assign(by=out["distance_raw_m"].fillna(out["distance_m"]))
+    out = out.join(box_difficulty(nearer, (image_width, image_height), distance="by"))
     return out.sort_values(["frame", "box"]).reset_index(drop=True)
+
+
+def _references(
+    boxes: pd.DataFrame, times: np.ndarray, track_ends: bool
+) -> tuple[pd.DataFrame, dict[int, float]]:
+    """Every track's reference (:func:`ttc.evaluation.track_ends.track_reference` of its
+    usable distances: not cut by the border, jumps dropped), one row per ``frame`` and
+    ``track_id``, and each track's median closing speed (m/s) by track id. Neither a box cut
+    by the border nor one whose distance was a jump gets an extrapolated distance: inside a
+    track the frames on both sides say the object stayed on its line (a jump there is
+    interpolated), beyond its last measurement nothing does (the box may have passed to
+    another object, or the nearest face out of view). Tracks without
+    their own noise estimate are done again with the recording's (:func:`recording_noise`)."""
+    usable = boxes["distance_raw_m"].where(~boxes["edge_cut"])
+    inputs, closing, jumps = {}, {}, {}
+    for tid, track in boxes.assign(distance_m=usable).groupby("track_id", sort=True):
+        track = track.sort_values("frame")
+        closing[tid] = median_closing_speed(track["frame"], track["distance_m"], times)
+        kept = drop_jumps(track, times)
+        jump = track["distance_m"].notna().to_numpy() & np.isnan(kept)
+        inputs[tid] = (track["frame"].to_numpy(), kept, times,
+                       ~track["edge_cut"].to_numpy(dtype=bool) & ~jump)  # fmt: skip
+        jumps[tid] = jump
+    parts = {tid: track_reference(*args, ends=track_ends) for tid, args in inputs.items()}
+    if track_ends:
+        own = [p["noise_sd_m"].iloc[0] for p in parts.values() if (p["fit"] == "savgol").any()]
+        noise = recording_noise(np.array(own, dtype=float))
+        for tid, part in parts.items():
+            if not (part["fit"] == "savgol").any() and (part["fit"] != "").any():
+                parts[tid] = track_reference(*inputs[tid], noise_m=noise)
+    columns = ["frame", "track_id", *TRACK_COLUMNS, "jump"]
+    if not parts:
+        return pd.DataFrame(columns=columns), closing
+    refs = pd.concat([p.assign(track_id=int(tid), jump=jumps[tid]) for tid, p in parts.items()])
+    return refs[columns], closing
