@@ -40,6 +40,9 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     "download": Subcommand("experiments.data.download", "download (or complete) the KITTI frames"),
     "benchmark": Subcommand("experiments.tools.benchmark", "time the main sweep (cold and warm)"),
     "schema": Subcommand("experiments.tools.schema", "print the columns of the rows dataset"),
+    "export": Subcommand(
+        "experiments.tools.export", "one setting of a sweep as an MCAP file for Foxglove"
+    ),
     "learned-timing": Subcommand(
         "experiments.tools.learned_timing", "per-stage CPU / CUDA times of the learned features"
     ),
