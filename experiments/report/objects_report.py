@@ -1,8 +1,11 @@
 """The "every object" report of one recording: ``reference_objects.csv`` (the reference of every
-tracked object), ``objects.csv`` (each setting per role and TTC range) and ``objects.md``
-(tracks, what was judged, the best settings on all objects beside the lead-only best, where
-camera TTC breaks down). Thin: the tables come from :mod:`ttc.evaluation.object_reference`
-and :mod:`ttc.evaluation.object_errors`."""
+tracked object, each box's KITTI difficulty level), ``objects.csv`` (each setting per level, role
+and TTC range), ``objects_levels.csv`` (each setting per level), ``objects_ranking.csv`` (the
+ranking per level: ``easy``, ``moderate``, ``hard``, ``all``) and ``objects.md`` (tracks, what
+was judged per level, the best settings on all objects beside the lead-only best and per level,
+Kendall's τ between levels, where camera TTC breaks down). Thin: the tables come from
+:mod:`ttc.evaluation.object_reference`, :mod:`ttc.evaluation.object_errors` and
+:mod:`ttc.evaluation.object_levels`."""
 
 from __future__ import annotations
 
@@ -17,14 +20,20 @@ from experiments.report.header import provenance_markdown
 from experiments.report.judged_rows import camera_runs
 from experiments.report.load import Context, SweepData
 from experiments.report.plots import plot_breakdown, plot_objects, save_figure
+from ttc.evaluation.difficulty import RANKING_LEVELS
 from ttc.evaluation.errors import rows_of_runs
 from ttc.evaluation.object_errors import (
     breakdown,
     judge_objects,
-    object_metrics,
     ranking_agreement,
     track_bootstrap_ranks,
     track_table,
+)
+from ttc.evaluation.object_levels import (
+    level_agreement,
+    level_counts,
+    level_metrics,
+    level_rankings,
 )
 from ttc.evaluation.object_reference import REFERENCE_OBJECT_COLUMNS
 from ttc.evaluation.ttc_bins import OBJECT_TTC_BINS
@@ -40,27 +49,76 @@ def reference_objects_table(reference: pd.DataFrame) -> pd.DataFrame:
 
 
 def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.DataFrame:
-    """Write ``reference_objects.csv``, ``objects.csv``, ``objects_ranking.csv``,
-    ``objects.md``, ``objects.png`` and ``objects_breakdown.png`` of the runs of ``data`` (one recording) judged against
-    ``reference`` (its objects' reference) into ``out``; returns the all-object ranking
-    (:func:`ttc.evaluation.object_errors.track_bootstrap_ranks`)."""
+    """Write ``reference_objects.csv``, ``objects.csv``, ``objects_levels.csv``,
+    ``objects_ranking.csv``, ``objects.md``, ``objects.png`` and ``objects_breakdown.png`` of
+    the runs of ``data`` (one recording) judged against ``reference`` (its objects' reference)
+    into ``out``; returns the every-object ranking per level
+    (:func:`ttc.evaluation.object_levels.level_rankings`: a ``difficulty`` column, its ``all``
+    rows the ranking of every judged pair)."""
     out.mkdir(parents=True, exist_ok=True)
     write_csv(reference_objects_table(reference), out / "reference_objects.csv")
     labels = camera_runs(data.runs)
     # the box pairs of those runs: all of them as the load keeps them (not copied then)
     judged = judge_objects(rows_of_runs(data.boxes, labels.index), reference)
     judged["setting"] = judged["run_id"].map(labels)
-    write_csv(object_metrics(judged, ["setting", "role", "ttc_bin"]), out / "objects.csv")
-    ranking = track_bootstrap_ranks(judged)
+    write_csv(level_metrics(judged, ["setting", "role", "ttc_bin"]), out / "objects.csv")
+    write_csv(level_metrics(judged, ["setting"]), out / "objects_levels.csv")
+    rankings = level_rankings(judged)
+    ranking = rankings[rankings["difficulty"] == "all"].drop(columns="difficulty")
     lead = track_bootstrap_ranks(judged, role="lead")
-    write_csv(ranking, out / "objects_ranking.csv")
+    write_csv(rankings, out / "objects_ranking.csv")
     tau = ranking_agreement(lead.set_index("setting")["score"],
                             ranking.set_index("setting")["score"])  # fmt: skip
-    write_text(_page(data, reference, judged, ranking, lead, tau), out / "objects.md")
+    levels = _levels_section(reference, judged, rankings)
+    write_text(_page(data, reference, judged, ranking, lead, tau, levels), out / "objects.md")
     save_figure(plot_objects(reference, judged, ranking), out / "objects.png")
     if judged["judged"].any():
         save_figure(plot_breakdown(breakdown(judged)), out / "objects_breakdown.png")
-    return ranking
+    return rankings
+
+
+def _levels_section(reference: pd.DataFrame, judged: pd.DataFrame, rankings: pd.DataFrame) -> str:
+    """The per-level part of ``objects.md``: boxes per level, pairs judged per level and TTC
+    range, the best settings per level and Kendall's τ between levels."""
+    boxes = reference["difficulty"].value_counts().reindex([*RANKING_LEVELS[:-1], "none"])
+    best = [
+        f"### `{level}`\n\n" + markdown_table(rankings[rankings["difficulty"] == level]
+                                              .drop(columns="difficulty").head(BEST))
+        for level in RANKING_LEVELS
+    ]  # fmt: skip
+    lines = [
+        "## Difficulty levels (KITTI)",
+        "",
+        "Each box's level as in KITTI's object benchmark: `easy` at least 40 px high, fully "
+        "visible (at most 10 % of it covered by the boxes of nearer objects, by lidar "
+        "distance) and not touching the image border; `moderate` at least 25 px, at most half "
+        "covered, not at the border; `hard` at least 25 px, any cover or at the border (the "
+        "part cut off cannot be measured: a box at the border is `hard` at best); below 25 px "
+        "no level (`none`, counted in `all` only). A pair takes the worse level of its two "
+        "boxes; the levels are cumulative (`moderate` holds `easy`, `hard` both).",
+        "",
+        markdown_table(boxes.fillna(0).astype(int).rename("boxes").rename_axis("difficulty")
+                       .reset_index()),
+        "",
+        "## Object pairs judged per level and reference-TTC range (distinct boxes)",
+        "",
+        markdown_table(level_counts(judged)) if judged["judged"].any() else "Nothing judged.",
+        "",
+        f"## Best {BEST} settings per level",
+        "",
+        "The all-object score (mean capped relative camera TTC error, an invalid estimate 1) "
+        "over the pairs of each level, with 90 % rank intervals from a bootstrap over tracks.",
+        "",
+        *[b + "\n" for b in best],
+        "## Kendall's τ between levels",
+        "",
+        "How far the order of the settings on one level carries to another (over the settings "
+        "both ranked).",
+        "",
+        markdown_table(level_agreement(rankings)),
+        "",
+    ]  # fmt: skip
+    return "\n".join(lines)
 
 
 def _tau_line(tau: float) -> str:
@@ -78,8 +136,10 @@ def _page(
     ranking: pd.DataFrame,
     lead: pd.DataFrame,
     tau: float,
+    levels: str = "",
 ) -> str:
-    """The markdown of ``objects.md``."""
+    """The markdown of ``objects.md`` (``levels``: its per-level part, after the pairs
+    judged per role and range)."""
     tracks = reference.groupby("track_id")["role"].first().value_counts()
     one = judged.drop_duplicates(["frame", "curr_box", "ref_track_id"])
     counts = pd.crosstab(one["role"], one["ttc_bin"].where(one["judged"], "not judged"))
@@ -100,6 +160,7 @@ def _page(
         "",
         markdown_table(counts.reset_index()),
         "",
+        levels,
         f"## Best {BEST} settings on all objects",
         "",
         "Ranked by the score: the mean over every judged object pair of the relative camera "
@@ -149,12 +210,20 @@ def recording_objects_report(data: SweepData, ctx: Context, out: Path) -> pd.Dat
     return objects_report(data, next(iter(refs.values())), out) if refs else None
 
 
+def _all_level(ranking: pd.DataFrame) -> pd.DataFrame:
+    """The ``all`` rows of a ranking per level (the ranking itself when it has no levels)."""
+    if "difficulty" not in ranking:
+        return ranking
+    return ranking[ranking["difficulty"] == "all"].drop(columns="difficulty")
+
+
 def cross_recording_objects(rankings: dict[str, pd.DataFrame | None], out: Path) -> Path | None:
     """``objects_recordings.md`` / ``.csv``: how far the all-object ranking carries between
     recordings (Kendall's τ of every pair of recordings over the settings both judged), from
     each recording's :func:`objects_report` ranking by recording name; None with fewer than
     two recordings."""
-    names = [n for n, r in rankings.items() if r is not None and not r.empty]
+    rankings = {n: _all_level(r) for n, r in rankings.items() if r is not None}
+    names = [n for n, r in rankings.items() if not r.empty]
     if len(names) < 2:
         return None
     scores = {n: rankings[n].set_index("setting")["score"] for n in names}

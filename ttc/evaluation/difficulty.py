@@ -143,8 +143,8 @@ def box_difficulty(
 def level_rank(levels: np.ndarray | pd.Series) -> np.ndarray:
     """(N,) position of each level name in :data:`BOX_LEVELS` (0 easy … 3 none; an unknown
     name, e.g. a box without a reference row, ranks as none)."""
-    rank = {name: i for i, name in enumerate(BOX_LEVELS)}
-    return np.array([rank.get(v, len(LEVELS)) for v in np.asarray(levels, dtype=object)], int)
+    codes = pd.Categorical(np.asarray(levels, dtype=object), categories=BOX_LEVELS).codes
+    return np.where(codes < 0, len(LEVELS), codes).astype(np.int64)
 
 
 def worse_level(a: np.ndarray | pd.Series, b: np.ndarray | pd.Series) -> np.ndarray:

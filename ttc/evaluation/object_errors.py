@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import kendalltau
 
+from ttc.evaluation.difficulty import worse_level
 from ttc.evaluation.errors import estimated_ratio, mid_error, rows_where
 from ttc.evaluation.ranking import in_row_chunks
 from ttc.evaluation.ttc_bins import OBJECT_TTC_BIN_EDGES_S, OBJECT_TTC_BINS, ttc_bin
@@ -22,7 +23,8 @@ from ttc.evaluation.ttc_bins import OBJECT_TTC_BIN_EDGES_S, OBJECT_TTC_BINS, ttc
 OBJECT_SENSORS: tuple[str, ...] = ("camera", "lidar")
 #: Columns of the reference carried onto each judged row.
 _REFERENCE = ["frame", "box", "track_id", "role", "distance_m", "closing_speed_mps",
-              "ratio_ref", "ttc_ref_s", "ttc_ref_sd_s", "judgeable", "bearing_deg"]  # fmt: skip
+              "ratio_ref", "ttc_ref_s", "ttc_ref_sd_s", "judgeable", "bearing_deg",
+              "difficulty"]  # fmt: skip
 
 
 def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
@@ -34,7 +36,9 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
     unless judgeable and valid), ``{s}_invalid``, ``{s}_mid`` (the motion-in-depth error
     against the object's distance ratio, 10⁻⁴, as the lead's) and ``{s}_score`` (the relative error capped
     at 1, an invalid estimate 1: bounded, so a setting invalid on half the pairs is not tied
-    with every other one at +inf; the all-object ranking takes its mean)."""
+    with every other one at +inf; the all-object ranking takes its mean). With the reference's
+    per-box ``difficulty`` (:mod:`ttc.evaluation.difficulty`), ``difficulty`` is the pair's:
+    the worse level of its previous and its current box."""
     matched = ((rows["prev_box"] >= 0) & (rows["curr_box"] >= 0)).to_numpy(dtype=bool)
     pairs = rows_where(rows, matched)  # a report's are all matched pairs: not copied whole
     ref = reference[[c for c in _REFERENCE if c in reference]].rename(
@@ -44,6 +48,10 @@ def judge_objects(rows: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
     before = reference.set_index(["track_id", "frame"])["box"]
     key = pd.MultiIndex.from_arrays([out["ref_track_id"], out["prev_frame"]])
     out["box_match_ok"] = before.reindex(key).to_numpy() == out["prev_box"].to_numpy()
+    if "difficulty" in out:
+        level = reference.set_index(["frame", "box"])["difficulty"]
+        prev = level.reindex(pd.MultiIndex.from_arrays([out["prev_frame"], out["prev_box"]]))
+        out["difficulty"] = worse_level(prev.to_numpy(), out["difficulty"].to_numpy())
     out["ttc_bin"] = ttc_bin(out["ttc_ref_s"], OBJECT_TTC_BIN_EDGES_S, OBJECT_TTC_BINS)
     judged = out["judgeable"].astype(bool) & (out["ttc_bin"] != "")
     for s in OBJECT_SENSORS:

@@ -1,0 +1,85 @@
+"""Every object judged per KITTI difficulty level (issue 50, item 2): a pair takes the worse
+level of its boxes, levels are cumulative, ``all`` is the ranking without levels, τ between
+levels. Synthetic judged pairs (exact checks)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ttc.evaluation.object_errors import judge_objects, track_bootstrap_ranks
+from ttc.evaluation.object_levels import (
+    level_agreement,
+    level_counts,
+    level_metrics,
+    level_rankings,
+)
+
+
+def _reference() -> pd.DataFrame:
+    """Three tracks over frames 0–2, one box each a frame: track 0 easy, track 1 easy on
+    frames 0–1 and hard on frame 2 (cut by the border), track 2 below 25 px (none)."""
+    rows = []
+    for frame in range(3):
+        for box, level in enumerate(["easy", "hard" if frame == 2 else "easy", "none"]):
+            rows.append({"frame": frame, "box": box, "track_id": box, "role": "static",
+                         "distance_m": 10.0 + box, "closing_speed_mps": 10.0,
+                         "ratio_ref": 1.1, "ttc_ref_s": 1.0 + box, "ttc_ref_sd_s": 0.01,
+                         "judgeable": True, "bearing_deg": 0.0, "difficulty": level})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def _rows(run_id: str, errors: tuple[float, float, float]) -> pd.DataFrame:
+    """A run's pairs (frames 1 and 2, every box matched to itself): camera TTC off by
+    ``errors`` (relative) on the boxes 0, 1, 2."""
+    rows = []
+    for frame in (1, 2):
+        for box, err in enumerate(errors):
+            ttc = (1.0 + box) * (1.0 + err)
+            rows.append({"run_id": run_id, "prev_frame": frame - 1, "frame": frame,
+                         "prev_box": box, "curr_box": box, "box_w": 50.0, "ttc_camera": ttc,
+                         "ttc_lidar": 1.0 + box, "camera_ratio": np.nan,
+                         "d_prev": np.nan, "d_curr": np.nan})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+@pytest.fixture()
+def judged() -> pd.DataFrame:
+    rows = pd.concat([_rows("a", (0.1, 0.5, 0.9)), _rows("b", (0.2, 0.2, 0.2)),
+                      _rows("c", (0.3, 0.1, 0.0))], ignore_index=True)  # fmt: skip
+    out = judge_objects(rows, _reference())
+    return out.assign(setting=out["run_id"])
+
+
+def test_a_pair_takes_the_worse_level_of_its_two_boxes(judged) -> None:
+    level = judged.set_index(["run_id", "frame", "curr_box"])["difficulty"]
+    assert level[("a", 1, 1)] == "easy"
+    assert level[("a", 2, 1)] == "hard"  # easy → hard
+    assert level[("a", 1, 2)] == "none"
+
+
+def test_levels_are_cumulative_and_all_is_the_ranking_without_levels(judged) -> None:
+    rankings = level_rankings(judged)
+    assert rankings["difficulty"].unique().tolist() == ["easy", "moderate", "hard", "all"]
+    pairs = rankings.groupby("difficulty", sort=False)["n_pairs"].first()
+    assert pairs.tolist() == [3, 3, 4, 6]  # easy: 2 + 1 pairs; hard adds the cut one
+    easy = rankings[rankings["difficulty"] == "easy"].set_index("setting")["score"]
+    assert easy.to_dict() == pytest.approx({"a": 0.7 / 3, "b": 0.2, "c": 0.7 / 3})
+    every = rankings[rankings["difficulty"] == "all"].drop(columns="difficulty")
+    pd.testing.assert_frame_equal(every.reset_index(drop=True), track_bootstrap_ranks(judged))
+    metrics = level_metrics(judged, ["setting"])
+    easy_a = metrics[(metrics["difficulty"] == "easy") & (metrics["setting"] == "a")].iloc[0]
+    assert easy_a["camera_medae_rel"] == pytest.approx(0.1)
+    assert easy_a["n_tracks"] == 2 and easy_a["camera_invalid_rate"] == 0
+
+
+def test_tau_between_levels_and_pairs_per_level(judged) -> None:
+    tau = level_agreement(level_rankings(judged)).set_index(["level_a", "level_b"])
+    # moderate holds exactly the easy pairs here: the same order
+    assert tau.loc[("easy", "moderate"), "kendall_tau"] == pytest.approx(1.0)
+    assert tau.loc[("easy", "all"), "n_settings"] == 3
+    assert -1.0 <= tau.loc[("easy", "all"), "kendall_tau"] <= 1.0
+    counts = level_counts(judged).set_index("difficulty")
+    assert counts.loc["easy", "<3s"] == 3 and counts.loc["hard", "total"] == 4
+    assert counts.loc["all", "total"] == 6
