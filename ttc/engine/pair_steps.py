@@ -51,14 +51,16 @@ class FrameLidar:
         o = self.objects
         return {"uv": self.lead.uv, "owner": self.lead.owner, "lead": np.array(self.lead.lead),
                 "object_owner": o.owner, "distance_m": o.distance_m, "spread_m": o.spread_m,
-                "n_points": o.n_points, "n_frustum": o.n_frustum}  # fmt: skip
+                "n_points": o.n_points, "n_frustum": o.n_frustum,
+                "distance_sd_m": o.distance_sd_m, "unsure": o.unsure}  # fmt: skip
 
     @classmethod
     def from_arrays(cls, a: Arrays) -> FrameLidar:
         """The association of :meth:`arrays`' output."""
         lead = LeadAssociation(a["uv"], a["owner"], int(a["lead"]))
         objects = ObjectAssociation(a["object_owner"], a["distance_m"], a["spread_m"],
-                                    a["n_points"], a["n_frustum"])  # fmt: skip
+                                    a["n_points"], a["n_frustum"], a["distance_sd_m"],
+                                    a["unsure"])  # fmt: skip
         return cls(lead, objects)
 
 
