@@ -229,3 +229,25 @@ def test_the_real_network_is_yolos_size_of_answer(ssd_dir, data_dir, monkeypatch
     assert np.all(found.roi[:, 0] + found.roi[:, 2] <= image.shape[1])
     names = [Path(p).name for p, _, _ in model_identity(settings.objects)]
     assert names == [SSD_FILES["cfg"], SSD_FILES["weights"]]
+
+
+def test_the_every_object_report_judges_one_detectors_runs(capsys):
+    """A recording's runs of two detectors: the every-object report keeps the runs of the
+    detector most of them use (its boxes make the reference; box numbers of another detector
+    would be judged against the wrong boxes), and says so; one detector: all runs."""
+    from experiments.report.drives_report import one_detector  # noqa: PLC0415
+    from experiments.report.load import SweepData  # noqa: PLC0415
+
+    def config(objects: list[str]) -> str:
+        return json.dumps(setting_config(composed(["dataset.last=1", *objects])), sort_keys=True)
+
+    yolo, ssd = config([]), config([f"objects={SSD_MODEL}"])
+    tiled = config(["objects.tiles=4"])  # YOLOv3-tiny on tiles: other boxes, other numbers
+    runs = pd.DataFrame({"run_id": ["a", "b", "c", "d"], "config": [ssd, yolo, tiled, yolo]})
+    rows = pd.DataFrame({"run_id": ["a", "b", "c", "d", "d"], "frame": [1, 1, 1, 1, 2]})
+    data = SweepData([], rows, runs, boxes=rows)
+    kept = one_detector(data)
+    assert list(kept.runs["run_id"]) == ["b", "d"] and list(kept.boxes["run_id"]) == ["b", "d", "d"]
+    assert "2 runs of other detector settings are not judged" in capsys.readouterr().out
+    alone = SweepData([], rows[:1], runs[:1], boxes=rows[:1])
+    assert one_detector(alone) is alone

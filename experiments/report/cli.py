@@ -120,7 +120,8 @@ def build_report(
         lap("fp6")
         fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
         lap("fp7")
-        objects = objects_report.recording_objects_report(data, ctx, out) if has_rows else None
+        objects = (objects_report.recording_objects_report(drives_report.one_detector(data), ctx,
+                                                           out) if has_rows else None)  # fmt: skip
         lap("objects")
         index = (
             html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables,
@@ -166,7 +167,8 @@ def build_drives_report(
         fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
         ctx.drop_details()
         fp7_tables = fp7.fp7_report(part, reference, folder)
-        object_rankings[name] = objects_report.recording_objects_report(part, ctx, folder)
+        one = drives_report.one_detector(part)  # its reference: one detector's boxes
+        object_rankings[name] = objects_report.recording_objects_report(one, ctx, folder)
         if html:
             html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables,
                         objects_ranking=object_rankings[name])  # fmt: skip

@@ -6,6 +6,7 @@ each drive are written by :func:`experiments.report.cli.build_report` into ``<ou
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pandas as pd
@@ -39,6 +40,29 @@ def split_by_recording(data: SweepData) -> dict[str, SweepData]:
             data.dirs, frames, runs, data.overrides, data.repeated, boxes
         )
     return parts
+
+
+def one_detector(data: SweepData) -> SweepData:
+    """The runs of ``data`` (one recording) with its most frequent detector setting (the whole
+    ``objects`` entry: model, tiles, thresholds; ties: the first in sorted order), for the
+    every-object report: its reference is made of one detector's boxes and a pair is judged by
+    its box numbers, so the runs of another detector cannot be judged against it. A line says
+    which runs were left out; ``data`` itself when it has one detector."""
+    objects = data.runs["config"].map(
+        lambda c: json.dumps(json.loads(c).get("objects"), sort_keys=True)
+    )
+    counts = objects.value_counts()
+    if len(counts) <= 1:
+        return data
+    kept = sorted(counts.index[counts == counts.max()])[0]
+    ids = set(data.runs.loc[objects == kept, "run_id"])
+    name = json.loads(kept)["name"]
+    print(f"every object: judged against the boxes of {name} ({len(ids)} runs); "
+          f"{len(objects) - len(ids)} runs of other detector settings are not judged there "
+          "(one object reference per detector: not yet)")  # fmt: skip
+    pick = lambda t: t[t["run_id"].isin(ids)].reset_index(drop=True) if not t.empty else t  # noqa: E731
+    return SweepData(data.dirs, pick(data.frames), pick(data.runs), data.overrides,
+                     data.repeated, pick(data.boxes))  # fmt: skip
 
 
 def drive_references(data: SweepData, ctx: Context) -> dict[str, pd.DataFrame]:
