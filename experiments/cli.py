@@ -35,6 +35,9 @@ SUBCOMMANDS: dict[str, Subcommand] = {
         "experiments.tools.compact", "merge a sweep's small rows files into larger ones"
     ),
     "report": Subcommand("experiments.report", "write the FP.5 / FP.6 reports of sweeps"),
+    "judge": Subcommand(
+        "experiments.judge", "judge another implementation's TTC numbers beside the harness's"
+    ),
     "compare": Subcommand("experiments.tools.compare", "compare two sweeps setting by setting"),
     "show": Subcommand("experiments.tools.show", "pictures of one frame pair of one setting"),
     "download": Subcommand("experiments.data.download", "download (or complete) the KITTI frames"),
