@@ -1,7 +1,8 @@
 """The judge report: ``judge.md`` (what was read, the conventions, each sensor's ranking of
 the external settings among the harness's), ``judge_<sensor>_ranking.csv`` (every setting,
-``external`` marked), ``judge_ttc_series.png`` (the external TTC series against the
-reference) and ``judge_rank_intervals.png``, with the report's own writers."""
+``external`` marked), ``judge_<sensor>_series.png`` (the external TTC series against
+the reference), ``judge_rank_intervals.png`` and ``html/judge.html``, with the report's own
+writers."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pandas as pd
 from experiments.judge.harness import HarnessSide
 from experiments.judge.judging import ExternalInput
 from experiments.report.encode import markdown_table, write_csv, write_text
+from experiments.report.html.page import CSS, STYLE, esc, markdown_html
 from experiments.report.plots import plot_rank_intervals, save_figure
 from ttc import evaluation as ev
 
@@ -120,5 +122,21 @@ def write_judge_report(
         fig = plot_external_series(external.rows, side.reference, sensor, side.first, side.last)
         written.append(save_figure(fig, out / name))
         lines += [f"![{sensor} TTC series]({name})", ""]
-    written.insert(0, write_text("\n".join(lines), out / "judge.md"))
+    text = "\n".join(lines)
+    written.insert(0, write_text(text, out / "judge.md"))
+    written.append(judge_html(text, [p.name for p in written if p.suffix == ".png"], out))
     return written
+
+
+def judge_html(text: str, pictures: list[str], out: Path) -> Path:
+    """``out/html/judge.html``: ``judge.md`` as a page in the report's style (its markdown
+    subset, :func:`~experiments.report.html.page.markdown_html`), the pictures below."""
+    images = "".join(f'<p><img src="../{esc(p)}" alt="{esc(p)}"></p>' for p in pictures)
+    write_text(CSS.lstrip(), out / "html" / STYLE)
+    body = markdown_html(text) + images
+    return write_text(
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        f'<title>External TTC judged</title>\n<link rel="stylesheet" href="{STYLE}">\n'
+        f"</head>\n<body>\n{body}\n</body>\n</html>\n",
+        out / "html" / "judge.html",
+    )
