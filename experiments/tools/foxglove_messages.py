@@ -141,7 +141,7 @@ def box_annotations(boxes: pd.DataFrame, ns: int, header: list[str]) -> ImageAnn
     """Each box's outline (a closed line, lead yellow) and its label above it, plus ``header``
     lines at the image's top left; every element stamped ``ns`` (the image's time)."""
     when = stamp(ns)
-    out = ImageAnnotations()
+    out = ImageAnnotations(timestamp=when)
     for k, line in enumerate(header):
         out.texts.append(TextAnnotation(timestamp=when, position=Point2(x=8.0, y=20.0 + 22.0 * k),
                          text=line, font_size=16.0, text_color=WHITE,
