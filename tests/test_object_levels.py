@@ -83,3 +83,28 @@ def test_tau_between_levels_and_pairs_per_level(judged) -> None:
     counts = level_counts(judged).set_index("difficulty")
     assert counts.loc["easy", "<3s"] == 3 and counts.loc["hard", "total"] == 4
     assert counts.loc["all", "total"] == 6
+
+
+def test_tau_between_recordings_per_level(tmp_path) -> None:
+    """``objects_recordings.csv`` keeps τ of the ``all`` rankings (one row per pair of
+    recordings, as before levels); ``objects_recordings_levels.csv`` has τ per level."""
+    from experiments.report.objects_report import cross_recording_objects
+
+    def ranking(order: dict[str, list[float]]) -> pd.DataFrame:
+        return pd.concat([pd.DataFrame({"difficulty": level, "setting": ["a", "b", "c", "d"],
+                                        "score": scores, "n_pairs": 5})
+                          for level, scores in order.items()], ignore_index=True)  # fmt: skip
+
+    one = ranking({"easy": [1, 2, 3, 4], "moderate": [1, 2, 3, 4], "hard": [1, 2, 3, 4],
+                   "all": [1, 2, 3, 4]})  # fmt: skip
+    two = ranking({"easy": [1, 2, 3, 4], "moderate": [4, 3, 2, 1], "hard": [1, 2, 4, 3],
+                   "all": [2, 1, 3, 4]})  # fmt: skip
+    cross_recording_objects({"x": one, "y": two}, tmp_path)
+    every = pd.read_csv(tmp_path / "objects_recordings.csv")
+    assert every.columns.tolist() == ["recording_a", "recording_b", "kendall_tau"]
+    assert every["kendall_tau"].tolist() == pytest.approx([4 / 6])
+    levels = pd.read_csv(tmp_path / "objects_recordings_levels.csv").set_index("difficulty")
+    assert levels["kendall_tau"].to_dict() == pytest.approx(
+        {"easy": 1.0, "moderate": -1.0, "hard": 4 / 6, "all": 4 / 6}
+    )
+    assert "per difficulty level" in (tmp_path / "objects_recordings.md").read_text()

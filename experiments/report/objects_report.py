@@ -221,11 +221,15 @@ def cross_recording_objects(rankings: dict[str, pd.DataFrame | None], out: Path)
     """``objects_recordings.md`` / ``.csv``: how far the all-object ranking carries between
     recordings (Kendall's τ of every pair of recordings over the settings both judged), from
     each recording's :func:`objects_report` ranking by recording name; None with fewer than
-    two recordings."""
+    two recordings. With rankings per level, ``objects_recordings_levels.csv`` holds τ per
+    level too (the ``.md`` a table of it)."""
+    levels = _levels_tau({n: r for n, r in rankings.items() if r is not None})
     rankings = {n: _all_level(r) for n, r in rankings.items() if r is not None}
     names = [n for n, r in rankings.items() if not r.empty]
     if len(names) < 2:
         return None
+    if not levels.empty:
+        write_csv(levels, out / "objects_recordings_levels.csv")
     scores = {n: rankings[n].set_index("setting")["score"] for n in names}
     pairs = [(a, b, ranking_agreement(scores[a], scores[b]))
              for i, a in enumerate(names) for b in names[i + 1 :]]  # fmt: skip
@@ -245,5 +249,24 @@ def cross_recording_objects(rankings: dict[str, pd.DataFrame | None], out: Path)
         "",
         markdown_table(best),
         "",
+        *(["## Kendall's τ between recordings per difficulty level", "",
+           markdown_table(levels), ""] if not levels.empty else []),
     ])  # fmt: skip
     return write_text(text, out / "objects_recordings.md")
+
+
+def _levels_tau(rankings: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """Kendall's τ between every two recordings' rankings of each level (rankings with a
+    ``difficulty`` column only): ``difficulty``, ``recording_a``, ``recording_b``,
+    ``n_settings``, ``kendall_tau``."""
+    names = [n for n, r in rankings.items() if "difficulty" in r and not r.empty]
+    rows = []
+    for level in RANKING_LEVELS:
+        scores = {n: rankings[n][rankings[n]["difficulty"] == level].set_index("setting")["score"]
+                  for n in names}  # fmt: skip
+        for i, a in enumerate(names):
+            for b in names[i + 1 :]:
+                both = scores[a].index.intersection(scores[b].index)
+                rows.append((level, a, b, len(both), ranking_agreement(scores[a], scores[b])))
+    columns = ["difficulty", "recording_a", "recording_b", "n_settings", "kendall_tau"]
+    return pd.DataFrame(rows, columns=columns)
