@@ -22,11 +22,11 @@ RESULTS_DIR = SOURCE_ROOT / "results"
 
 @dataclass
 class HarnessSide:
-    """Lead rows per sensor (``camera``, ``lidar``: run_id, frame, estimates, times), a label
-    per run id, the reference, the frames judged and where they came from."""
+    """Lead rows per sensor (``camera``, ``lidar``: run_id, frame, estimates, times), per
+    sensor a label per run id, the reference, the frames judged and where they came from."""
 
     rows: dict[str, pd.DataFrame]
-    labels: dict[str, str]
+    labels: dict[str, dict[str, str]]
     reference: pd.DataFrame
     first: int
     last: int
@@ -80,7 +80,7 @@ def committed_side(dataset: str, results_dir: Path = RESULTS_DIR) -> HarnessSide
     keep = ["run_id", "frame", "prev_frame", "dt", "is_lead", "ttc_camera", "camera_ratio",
             "ms_per_frame", "ms_compute_per_frame"]  # fmt: skip
     rows = {"camera": cam[keep]}
-    labels = dict(zip(cam["run_id"], cam["setting"], strict=False))
+    labels = {"camera": dict(zip(cam["run_id"], cam["setting"], strict=False))}
     lidar_path = folder / "fp5_lidar_ttc.csv"
     if lidar_path.is_file():
         lid = pd.read_csv(lidar_path)
@@ -88,7 +88,7 @@ def committed_side(dataset: str, results_dir: Path = RESULTS_DIR) -> HarnessSide
                          dt=_with_dt(lid, reference), ms_per_frame=0.0)  # fmt: skip
         rows["lidar"] = lid[["run_id", "frame", "prev_frame", "dt", "is_lead", "ttc_lidar",
                              "d_prev", "d_curr", "ms_per_frame"]]  # fmt: skip
-        labels |= dict(zip(rows["lidar"]["run_id"], rows["lidar"]["run_id"], strict=False))
+        labels["lidar"] = dict(zip(rows["lidar"]["run_id"], rows["lidar"]["run_id"], strict=False))
     frames = cam["frame"]
     return HarnessSide(rows, labels, reference, int(frames.min()) - 1, int(frames.max()),
                        f"committed results {folder}")  # fmt: skip
@@ -97,9 +97,9 @@ def committed_side(dataset: str, results_dir: Path = RESULTS_DIR) -> HarnessSide
 def sweep_side(
     sweep: Path, data_dir: Path | None = None, cache_dir: Path | None = None
 ) -> HarnessSide:
-    """A sweep's camera settings (one run each, :func:`ttc.evaluation.camera_runs`) as lead
-    rows with the reference of its recording (computed through the stage cache, as
-    ``ttc-bench report`` does)."""
+    """A sweep's camera settings (one run each, :func:`ttc.evaluation.camera_runs`) and lidar
+    estimators (one run each) as lead rows, with the reference of its recording (through the
+    stage cache, as ``ttc-bench report`` computes it)."""
     from experiments.report.load import load_sweeps, make_context, reference_for  # noqa: PLC0415
 
     data = load_sweeps([sweep])
@@ -108,7 +108,13 @@ def sweep_side(
     reference = reference_for(data, make_context(data_dir, cache_dir))
     chosen = ev.camera_runs(data.runs)
     rows = ev.rows_of_runs(data.frames, chosen["run_id"])
-    labels = dict(zip(chosen["run_id"], chosen["setting"], strict=False))
+    labels = {"camera": dict(zip(chosen["run_id"], chosen["setting"], strict=False))}
+    ok = data.runs[data.runs["status"] == "ok"].sort_values("run_id")
+    lidar = ok.drop_duplicates("lidar_ttc")  # one run per lidar estimator
+    labels["lidar"] = {
+        r: f"lidar_ttc={e}" for r, e in zip(lidar["run_id"], lidar["lidar_ttc"], strict=False)
+    }
     frames = rows["frame"]
-    return HarnessSide({"camera": rows}, labels, reference, int(frames.min()) - 1,
-                       int(frames.max()), f"sweep {sweep}")  # fmt: skip
+    return HarnessSide({"camera": rows, "lidar": ev.rows_of_runs(data.frames, lidar["run_id"])},
+                       labels, reference, int(frames.min()) - 1, int(frames.max()),
+                       f"sweep {sweep}")  # fmt: skip

@@ -98,6 +98,6 @@ def judge(
     for sensor, rows in side.rows.items():
         col = f"ttc_{sensor}"
         if col in external.rows and external.rows[col].notna().any():
-            out[sensor] = rank_together(rows, external.rows, side.reference, sensor, side.labels,
+            out[sensor] = rank_together(rows, external.rows, side.reference, sensor, side.labels[sensor],
                                         n_boot)  # fmt: skip
     return out
