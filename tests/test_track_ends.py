@@ -149,7 +149,7 @@ def test_drive_0009_keeps_every_smoothed_value_and_covers_the_track_ends(boxes_0
     """Drive 0009 frames 0–15: every value the smoothing gave (``track_ends=False``, the
     reference before) is kept bit for bit; of the boxes a pair can end at with a usable
     distance, the share with a distance and a reference TTC went from 85 % to ≥ 95 %
-    (measured: 61 → 71 of 72), and no judgeable pair was lost. A distance rejected as a jump
+    (measured: 60 → 69 of 71), and no judgeable pair was lost. A distance rejected as a jump
     off the track's line is not replaced by an extrapolation at a track's end."""
     boxes, times, width = boxes_0009
     before = object_reference(boxes, times, width, track_ends=False)
