@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +41,7 @@ from experiments.tools import foxglove_messages as fm
 from experiments.tools.mcap_out import McapOut
 from ttc.features.objects import ModelFileError
 from ttc.io import kitti_odometry
-from ttc.io.bag_recording import topics
+from ttc.io.bag_recording import topics, unpaired_errors
 from ttc.io.frame_errors import FrameDataError
 from ttc.io.frames import (
     IMAGE_DIR,
@@ -77,6 +77,7 @@ class Exported:
     seconds: float
     skipped: dict[int, str]
     copied: int = 0
+    notes: list[str] = field(default_factory=list)
 
 
 def select_run(runs: pd.DataFrame, run: str | None, setting: str | None, sweep: Path) -> str:
@@ -141,15 +142,25 @@ def _kitti_clock(source: Path, folder: Path) -> np.ndarray | None:
     return read_times_ns(path)[0] if path.is_file() else None
 
 
+def _bag_stamp(source: BagSource, frame: int) -> int:
+    """A bag frame's camera header stamp (ns), :data:`MISSING_NS` where a damaged chunk holds
+    it (the frame is then left out, its image read naming the chunk)."""
+    try:
+        return int(frame_clock_ns(source)[frame])
+    except FrameDataError:
+        return MISSING_NS
+
+
 def sensor_clocks(source: Path | BagSource, frames: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """(camera, lidar) time in ns since 1970 of each of ``frames``: a KITTI raw recording's
     ``image_02/`` and ``velodyne_points/`` ``timestamps.txt`` (one stands for the other where
     it is missing or blank); a bag's camera header stamps and its paired scans'; a KITTI
     odometry sequence's ``times.txt`` (from 0); else 10 Hz from 0 (the Udacity copy of drive 0052)."""
     if isinstance(source, BagSource):
-        camera = np.array([int(frame_clock_ns(source)[i]) for i in frames], dtype=np.int64)
+        camera = np.array([_bag_stamp(source, i) for i in frames], dtype=np.int64)
         index, _, _, lidar_topic = topics(source)
-        scans = [frame_files(source, i).scan.position for i in frames]
+        scans = [frame_files(source, i).scan.position if c != MISSING_NS else -1
+                 for i, c in zip(frames, camera, strict=True)]  # fmt: skip
         lidar = [header_stamp_ns(index, lidar_topic, s) if s >= 0 else c
                  for s, c in zip(scans, camera, strict=True)]  # fmt: skip
         return camera, np.array(lidar, dtype=np.int64)
@@ -212,7 +223,13 @@ def export(
     source = recording_source_of(runs, run_id, ctx.root)
     if keep_topics and not isinstance(source, BagSource):
         raise ValueError(f"--keep-topics: run {run_id} read {source}, not a bag (dataset=ros2_bag)")
-    refs = object_references(rows, runs, lambda r: ctx.detector_setup(runs, r), ctx.root, ctx.cache)
+    notes = []
+    try:
+        refs = object_references(rows, runs, lambda r: ctx.detector_setup(runs, r), ctx.root,
+                                 ctx.cache)  # fmt: skip
+    except FrameDataError as exc:  # e.g. a damaged bag: the estimates are exported all the same
+        refs = {}
+        notes.append(f"no reference TTC (ref n/a): {exc}")
     boxes = box_table(rows, next(iter(refs.values()), None))
     frames = rng.indices
     camera_ns, lidar_ns = sensor_clocks(source, frames)
@@ -229,12 +246,13 @@ def export(
                 write_frame(out, source, frame, (camera_ns[k], lidar_ns[k]),
                             boxes[boxes["frame"] == frame], header, image_format)  # fmt: skip
             except FrameDataError as exc:  # a damaged frame costs that frame only
-                skipped[frame] = str(exc)
+                why = unpaired_errors(source, [frame]) if isinstance(source, BagSource) else {}
+                skipped[frame] = str(why.get(frame, exc))  # a bag's: the chunk that lost it
         copied = out.copy_messages(bag_files(source.path)) if keep_topics else 0
         out.finish()
     size = out_path.stat().st_size
     return Exported(out_path, run_id, frames, dict(out.counts), size, time.perf_counter() - start,
-                    skipped, copied)  # fmt: skip
+                    skipped, copied, notes)  # fmt: skip
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -265,6 +283,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{done.path}: run {done.run_id}, frames {done.frames[0]}-{done.frames[-1]}, "
           f"{done.size_bytes / 1e6:.1f} MB in {done.seconds:.1f} s ({counts}"
           f"{f', {done.copied} bag messages copied' if done.copied else ''})")  # fmt: skip
+    for note in done.notes:
+        print(note, file=sys.stderr)
     for frame, why in done.skipped.items():
         print(f"frame {frame} not exported: {why}", file=sys.stderr)
 
