@@ -203,18 +203,19 @@ def _left_out_faces(xs: np.ndarray, params: ObjectLidarParams) -> tuple[np.ndarr
     chosen = ok[np.argmax(score)]
     bridge = np.zeros(len(xs), dtype=bool)
     bridge[1:-1] = xs[2:] - xs[:-2] > params.gap_m + params.gap_per_m * xs[:-2]
-    whole, face_only, plain, counts = np.zeros(len(xs), dtype=bool), [], [], []
+    whole, face = np.zeros(len(xs), dtype=bool), np.zeros(len(xs), dtype=bool)
+    plain, counts = [], []
     for g in ok:
         start, stop = starts[g], stops[g]
         whole[start : start + 2] = whole[stop - 1] = True
         whole[start:stop] |= bridge[start:stop]
-        head = int(NEAREST_FACE_QUANTILE * (stop - start - 1)) + 2 if g == chosen else 0
-        if head:
-            face_only = [r for r in range(start, start + head) if not whole[r]]
-        rest = [r for r in range(start, stop) if not whole[r] and r not in face_only]
-        if rest:
+        if g == chosen:
+            face[start : start + int(NEAREST_FACE_QUANTILE * (stop - start - 1)) + 2] = True
+        rest = start + np.flatnonzero(~whole[start:stop] & ~face[start:stop])
+        if len(rest):
             plain.append(rest[0])
             counts.append(len(rest))
+    face_only = list(np.flatnonzero(face & ~whole))
     picks = np.concatenate((np.flatnonzero(whole), plain)).astype(np.int64)
     faces = [_face_of(np.delete(xs, i), params) for i in picks]
     counts = [1] * int(whole.sum()) + counts
@@ -232,6 +233,27 @@ def _left_out_faces(xs: np.ndarray, params: ObjectLidarParams) -> tuple[np.ndarr
         faces.append(nearest_face(xs[starts[chosen] : stops[chosen]]))
         counts.append(others)
     return np.asarray(faces, dtype=np.float64), np.asarray(counts, dtype=np.int64)
+
+
+def _let_in_faces(xs: np.ndarray, params: ObjectLidarParams, values: np.ndarray) -> np.ndarray:
+    """The object's face (m) with each of ``values`` (m) let in among ``xs`` (sorted, m), one
+    at a time; a value that lands between two points of one group, past its first two (past
+    the chosen group's face quantile), only adds one to that group's count: one such value is
+    tried for all of them."""
+    starts, stops, ok, score = _scored_groups(xs, params)
+    chosen = ok[np.argmax(score)]
+    heads = np.full(len(starts), 2)
+    heads[chosen] = int(NEAREST_FACE_QUANTILE * (stops[chosen] - starts[chosen])) + 2
+    at = np.searchsorted(xs, values)
+    group = np.clip(np.searchsorted(starts, at, side="right") - 1, 0, None)
+    inner = (at >= starts[group] + heads[group]) & (at < stops[group])
+    faces, tried = [], set()
+    for value, position, g, plain in zip(values, at, group, inner, strict=True):
+        if plain and g in tried:
+            continue
+        tried.update([g] if plain else [])
+        faces.append(_face_of(np.insert(xs, position, value), params))
+    return np.asarray(faces, dtype=np.float64)
 
 
 def face_sensitivity(
@@ -253,8 +275,7 @@ def face_sensitivity(
     last = xs[found[1] - 1]
     edge = np.asarray(near_edge if near_edge is not None else [], dtype=np.float64)
     edge = edge[edge <= last + params.gap_m + params.gap_per_m * last]
-    let_in = [_face_of(np.insert(xs, np.searchsorted(xs, v), v), params) for v in edge]
-    moved = np.abs(np.concatenate((faces, let_in)) - face)
+    moved = np.abs(np.concatenate((faces, _let_in_faces(xs, params, edge))) - face)
     score = np.sort(_scored_groups(xs, params)[3])
     close = params.support_scale_m > 0 and len(score) > 1
     close = close and score[-2] >= CLOSE_SCORE_SHARE * score[-1]
