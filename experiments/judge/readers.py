@@ -62,9 +62,10 @@ class Grid:
 
 
 def norm(header: str) -> str:
-    """A header's key in :data:`ALIASES`: lower case, units in brackets dropped, letters,
-    digits and '#' kept."""
-    return re.sub(r"[^a-z0-9#]", "", re.sub(r"\[[^]]*\]", "", header.lower()))
+    """A header's key in :data:`ALIASES`: lower case, units dropped (``[s]``, ``(s)``,
+    ``(sec)``), letters, digits and '#' kept."""
+    unitless = re.sub(r"\[[^]]*\]|\((?:s|sec|secs|seconds)\)", "", header.lower())
+    return re.sub(r"[^a-z0-9#]", "", unitless)
 
 
 def frame_number(text: str) -> int | None:
