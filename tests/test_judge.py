@@ -253,3 +253,17 @@ def test_previous_frame_convention_only_when_asked(tmp_path: Path, side) -> None
         f"a/b,{f},{12.0 - 0.1 * f}\n" for f in range(18)))  # fmt: skip
     external = read_inputs([path], ["z"], side.first, side.last, side.reference, "previous")
     assert sorted(external.rows["frame"]) == list(range(1, 19))
+
+
+def test_minus_inf_is_invalid_unless_read_as_ratio_one(tmp_path: Path, side) -> None:
+    """ken-power's Shi-Tomasi/BRISK prints -inf on frames 6, 7, 8 and 10: invalid by default,
+    a ratio of exactly 1 (no scale change) with the option."""
+    plain = read_inputs([KEN], ["ken"], side.first, side.last, side.reference).rows
+    as_one = read_inputs([KEN], ["ken"], side.first, side.last, side.reference, "current", True)
+    for rows, expected in ((plain, float("nan")), (as_one.rows, 1.0)):
+        own = rows[rows["run_id"] == "ext:ken/shi_tomasi/brisk"].set_index("frame")
+        assert own.loc[[6, 7, 8, 10], "ttc_camera"].tolist() == [float("-inf")] * 4
+        assert own.loc[[6, 7, 8, 10], "camera_ratio"].tolist() == pytest.approx(
+            [expected] * 4, nan_ok=True
+        )
+        assert own.loc[1, "camera_ratio"] == pytest.approx(1 + 0.1 / 14.1119)

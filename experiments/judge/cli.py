@@ -48,6 +48,9 @@ def parser() -> argparse.ArgumentParser:
                    "or its previous frame")  # fmt: skip
     p.add_argument("--first-frame-is-pair-0", action="store_true",
                    help="the same as --frame-convention=previous")  # fmt: skip
+    p.add_argument("--minus-inf-is-ratio-one", action="store_true",
+                   help="read -inf as a distance ratio of exactly 1 (the C++ starter's TTC for "
+                   "no scale change), not as an invalid estimate")  # fmt: skip
     p.add_argument("--results-dir", type=Path, default=None, help="committed reports' folder")
     p.add_argument("--data-dir", type=Path, default=None, help="data root (with --with)")
     p.add_argument("--cache-dir", type=Path, default=None, help="stage cache (with --with)")
@@ -87,7 +90,7 @@ def main(argv: list[str] | None = None) -> None:
         side = harness_side(args, dataset)
         last = side.last if last < 0 else min(last, side.last)
         external = read_inputs(files, names, max(first, side.first), last, side.reference,
-                               convention)  # fmt: skip
+                               convention, args.minus_inf_is_ratio_one)  # fmt: skip
     except (InputError, ValueError, FileNotFoundError) as exc:
         print(f"ttc-bench judge: {exc}", file=sys.stderr)
         sys.exit(BAD_INPUT)

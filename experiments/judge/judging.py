@@ -36,7 +36,7 @@ class ExternalInput:
 
 def read_inputs(
     paths: list[Path], names: list[str], first: int, last: int, reference: pd.DataFrame,
-    convention: str = "current",
+    convention: str = "current", minus_inf_is_ratio_one: bool = False,
 ) -> ExternalInput:  # fmt: skip
     """Every file as judged lead rows (:func:`~ttc.evaluation.external.judged_external_rows`)
     under its name (``names``, one per file); an :class:`InputError` names the file, line and
@@ -50,7 +50,7 @@ def read_inputs(
             long, dropped = checked_long_table(long, first, last)
         except ExternalTableError as exc:
             raise InputError(path, exc.line, exc.column, exc.message) from None
-        rows = judged_external_rows(long, reference, name)
+        rows = judged_external_rows(long, reference, name, minus_inf_is_ratio_one)
         for run_id in rows["run_id"].unique():
             if run_id in seen:
                 raise InputError(path, 0, "setting", f"{run_id} was already read from "

@@ -133,21 +133,29 @@ def checked_long_table(
     return long.reset_index(drop=True), dropped
 
 
-def distance_ratio(ttc: np.ndarray, dt: np.ndarray) -> np.ndarray:
+def distance_ratio(
+    ttc: np.ndarray, dt: np.ndarray, minus_inf_is_ratio_one: bool = False
+) -> np.ndarray:
     """The distance ratio ``d_prev / d_curr`` (n,) behind a constant-velocity TTC (s, (n,))
     over ``dt`` seconds (n,): ``1 + dt / ttc``; NaN where the TTC is not finite (an invalid
-    estimate)."""
+    estimate), except ``-inf`` with ``minus_inf_is_ratio_one``: 1, what the Udacity starter's
+    ``TTC = -dT / (1 - r)`` prints for a median ratio of exactly 1 (no scale change)."""
     ttc, dt = np.asarray(ttc, dtype=float), np.asarray(dt, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(np.isfinite(ttc), 1.0 + dt / ttc, np.nan)
+        ratio = np.where(np.isfinite(ttc), 1.0 + dt / ttc, np.nan)
+    if minus_inf_is_ratio_one:
+        ratio[np.isneginf(ttc)] = 1.0
+    return ratio
 
 
-def judged_external_rows(long: pd.DataFrame, reference: pd.DataFrame, name: str) -> pd.DataFrame:
+def judged_external_rows(
+    long: pd.DataFrame, reference: pd.DataFrame, name: str, minus_inf_is_ratio_one: bool = False
+) -> pd.DataFrame:
     """The rows of a checked long table (:func:`checked_long_table`) in the form a sweep's
     lead rows have, for :func:`~ttc.evaluation.run_metrics`: ``run_id``
     (:func:`external_run_id`), ``setting``, ``frame``, ``prev_frame``, ``dt`` (s, from the
     reference's ``time_s``), ``is_lead`` (True), ``ttc_camera`` with ``camera_ratio``
-    (:func:`distance_ratio`), ``ttc_lidar`` with ``d_prev`` = that ratio and ``d_curr`` = 1
+    (:func:`distance_ratio`, ``minus_inf_is_ratio_one`` passed on), ``ttc_lidar`` with ``d_prev`` = that ratio and ``d_curr`` = 1
     (distances in units of the current one: the lidar metrics read their ratio), and
     ``ms_compute_per_frame`` +inf: an unknown time, which loses every tie of the ranking
     rule's time key (:data:`~ttc.evaluation.ranking.RANKING_RULE`)."""
@@ -167,10 +175,10 @@ def judged_external_rows(long: pd.DataFrame, reference: pd.DataFrame, name: str)
     )
     if "ttc_camera" in long:
         out["ttc_camera"] = long["ttc_camera"].to_numpy(dtype=float)
-        out["camera_ratio"] = distance_ratio(out["ttc_camera"], dt)
+        out["camera_ratio"] = distance_ratio(out["ttc_camera"], dt, minus_inf_is_ratio_one)
     if "ttc_lidar" in long:
         out["ttc_lidar"] = long["ttc_lidar"].to_numpy(dtype=float)
-        out["d_prev"] = distance_ratio(out["ttc_lidar"], dt)
+        out["d_prev"] = distance_ratio(out["ttc_lidar"], dt, minus_inf_is_ratio_one)
         out["d_curr"] = 1.0
     out["ms_per_frame"] = np.inf
     out["ms_compute_per_frame"] = np.inf
