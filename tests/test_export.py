@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from scipy.spatial.transform import Rotation
 
 from experiments import store
 from experiments.reference_store import object_references
@@ -23,14 +24,17 @@ from experiments.report.load import make_context
 from experiments.tools.export import TOPICS, select_run
 from tests.conftest import data_root
 from tests.test_report import make_sweep, run_module, shared_root
+from ttc.io.calibration import load_calibration
 from ttc.io.frames import frame_files, read_image
 from ttc.io.timestamps import read_times_ns
+from ttc.steps.lidar import project_to_image
 
 DRIVE_0009 = Path("kitti_raw") / "2011_09_26" / "2011_09_26_drive_0009_sync"
 #: Foxglove's schema of each exported topic (the JSON series is the harness's own).
 SCHEMAS = {"image": "foxglove.CompressedImage", "points": "foxglove.PointCloud",
            "boxes": "foxglove.ImageAnnotations", "objects": "foxglove.SceneUpdate",
-           "ttc": "ttc_bench.TrackTtc"}  # fmt: skip
+           "ttc": "ttc_bench.TrackTtc", "calibration": "foxglove.CameraCalibration",
+           "transform": "foxglove.FrameTransform"}  # fmt: skip
 
 
 def export(root: Path, sweep: Path, out: Path, *extra: str):
@@ -94,7 +98,7 @@ def test_an_export_of_drive_0009_holds_every_frame_at_the_recording_s_times(expo
     schemas, messages = read_back(out)
     assert {schemas[TOPICS[k]] for k in SCHEMAS} == set(SCHEMAS.values())
     assert all(schemas[TOPICS[k]] == name for k, name in SCHEMAS.items())
-    for key in ("image", "points", "boxes", "objects"):
+    for key in ("image", "points", "boxes", "objects", "calibration", "transform"):
         assert len(messages[TOPICS[key]]) == 16, key
     drive = data_root() / DRIVE_0009
     camera = read_times_ns(drive / "image_02" / "timestamps.txt")[0][:16]
@@ -120,6 +124,37 @@ def test_an_export_of_drive_0009_holds_every_frame_at_the_recording_s_times(expo
             "intensity",
         ]
         assert np.array_equal(np.frombuffer(cloud.data, "<f4"), scan)
+
+
+def test_the_exported_calibration_puts_the_scan_where_the_harness_projects_it(export_0009) -> None:
+    """Foxglove draws the scan on the image through the exported ``CameraCalibration`` (P) and
+    ``FrameTransform`` (lidar in the camera frame): the pixels of the KITTI projection
+    ``P_rect_02 · R_rect_00 · [R | T]`` (the rotation made orthonormal: 10⁻⁵ px)."""
+    _, _, out = export_0009
+    _, messages = read_back(out)
+    drive = data_root() / DRIVE_0009
+    for frame in (0, 15):
+        (_, camera), (_, move) = (
+            messages[TOPICS["calibration"]][frame],
+            messages[TOPICS["transform"]][frame],
+        )
+        assert (camera.frame_id, move.parent_frame_id, move.child_frame_id) == (
+            "camera",
+            "camera",
+            "lidar",
+        )
+        assert (camera.width, camera.height) == (1242, 375)
+        pose = np.eye(4)
+        q = move.rotation
+        pose[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+        pose[:3, 3] = [move.translation.x, move.translation.y, move.translation.z]
+        points = np.fromfile(frame_files(drive, frame).scan, "<f4").reshape(-1, 4)[:, :3]
+        points = points[points[:, 0] > 3.0].astype(float)
+        seen = (np.array(camera.P).reshape(3, 4) @ pose @ np.c_[points, np.ones(len(points))].T).T
+        harness = project_to_image(points, load_calibration(drive, "P_rect_02").velo_to_image)
+        inside = (harness >= 0).all(axis=1) & (harness[:, 0] < 1242) & (harness[:, 1] < 375)
+        gap = np.linalg.norm(seen[:, :2] / seen[:, 2:] - harness, axis=1)[inside]
+        assert inside.sum() > 10_000 and gap.max() < 1e-3
 
 
 def test_every_box_of_the_rows_is_exported_with_its_ttc(export_0009) -> None:

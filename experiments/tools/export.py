@@ -42,6 +42,7 @@ from experiments.tools.mcap_out import McapOut
 from ttc.features.objects import ModelFileError
 from ttc.io import kitti_odometry
 from ttc.io.bag_recording import topics, unpaired_errors
+from ttc.io.calibration import Calibration, load_calibration
 from ttc.io.frame_errors import FrameDataError
 from ttc.io.frames import (
     IMAGE_DIR,
@@ -57,7 +58,8 @@ from ttc.io.timestamps import MISSING_NS, read_times_ns
 from ttc.settings import AXES
 
 TOPICS = {"image": "/ttc_bench/image", "points": "/ttc_bench/points",
-          "boxes": "/ttc_bench/boxes", "objects": "/ttc_bench/objects", "ttc": "/ttc_bench/ttc"}  # fmt: skip
+          "boxes": "/ttc_bench/boxes", "objects": "/ttc_bench/objects", "ttc": "/ttc_bench/ttc",
+          "calibration": "/ttc_bench/calibration", "transform": "/ttc_bench/transform"}  # fmt: skip
 CAMERA_FRAME, LIDAR_FRAME = "camera", "lidar"
 #: Columns of the rows the export reads.
 ROW_COLUMNS = ["run_id", "prev_frame", "frame", "track_id", "curr_box", "prev_box", "is_lead",
@@ -187,13 +189,32 @@ def frame_header(label: str, frame: int, rows: pd.DataFrame) -> list[str]:
     return lines + [f"error: {errors[0][:160]}"] if errors else lines
 
 
+def camera_from_lidar(calib: Calibration) -> np.ndarray:
+    """4 × 4 pose of the lidar in the rectified camera frame (``R_rect_00 · [R | T]``, m):
+    ``calib.p_rect`` then projects it to pixels, as :attr:`Calibration.velo_to_image` does."""
+    r_rect = np.eye(4)
+    r_rect[:3, :3] = calib.r_rect_00
+    return r_rect @ calib.velo_to_cam
+
+
 def write_frame(out: McapOut, source, frame: int, clocks: tuple[int, int], boxes: pd.DataFrame,
-                header: list[str], image_format: str) -> None:  # fmt: skip
+                header: list[str], image_format: str, calib: Calibration) -> None:  # fmt: skip
     """Every exported topic's messages of one frame (its image and scan read here)."""
     camera_ns, lidar_ns = clocks
     files = frame_files(source, frame)
     image = read_image(files.image)
     scan = read_lidar_scan(files.scan).points
+    size = (image.shape[1], image.shape[0])
+    out.proto(
+        TOPICS["calibration"],
+        fm.camera_calibration(calib.p_rect, size, camera_ns, CAMERA_FRAME),
+        camera_ns,
+    )
+    out.proto(
+        TOPICS["transform"],
+        fm.frame_transform(camera_from_lidar(calib), camera_ns, CAMERA_FRAME, LIDAR_FRAME),
+        camera_ns,
+    )
     out.proto(
         TOPICS["image"],
         fm.compressed_image(image, camera_ns, CAMERA_FRAME, image_format),
@@ -232,6 +253,7 @@ def export(
         notes.append(f"no reference TTC (ref n/a): {exc}")
     boxes = box_table(rows, next(iter(refs.values()), None))
     frames = rng.indices
+    calib = load_calibration(source, rng.projection)
     camera_ns, lidar_ns = sensor_clocks(source, frames)
     label = "/".join(str(runs[a].iloc[0]) for a in AXES if a in runs)
     out_path.parent.mkdir(parents=True, exist_ok=True)
@@ -244,7 +266,7 @@ def export(
             header = frame_header(label, frame, rows[rows["frame"] == frame])
             try:
                 write_frame(out, source, frame, (camera_ns[k], lidar_ns[k]),
-                            boxes[boxes["frame"] == frame], header, image_format)  # fmt: skip
+                            boxes[boxes["frame"] == frame], header, image_format, calib)  # fmt: skip
             except FrameDataError as exc:  # a damaged frame costs that frame only
                 why = unpaired_errors(source, [frame]) if isinstance(source, BagSource) else {}
                 skipped[frame] = str(why.get(frame, exc))  # a bag's: the chunk that lost it

@@ -23,9 +23,11 @@ from typing import Any
 import cv2
 import numpy as np
 import pandas as pd
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.KeyValuePair_pb2 import KeyValuePair
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
@@ -33,6 +35,7 @@ from foxglove_schemas_protobuf.Point2_pb2 import Point2
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
@@ -40,6 +43,7 @@ from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.duration_pb2 import Duration
 from google.protobuf.timestamp_pb2 import Timestamp
+from scipy.spatial.transform import Rotation
 
 #: Box colours (RGBA 0-1): the lead box yellow, every other box cyan.
 LEAD_COLOUR = Color(r=1.0, g=0.85, b=0.0, a=1.0)
@@ -119,6 +123,32 @@ def point_cloud(points: np.ndarray, ns: int, frame_id: str) -> PointCloud:
     pose.orientation.w = 1.0
     return PointCloud(timestamp=stamp(ns), frame_id=frame_id, pose=pose, point_stride=16,
                       fields=fields, data=data.tobytes())  # fmt: skip
+
+
+def camera_calibration(
+    p_rect: np.ndarray, size: tuple[int, int], ns: int, frame_id: str
+) -> CameraCalibration:
+    """The rectified camera (``p_rect``: 3 × 4 projection, pixels; ``size``: width, height px)
+    as a ``foxglove.CameraCalibration``: no distortion, ``K`` its left 3 × 3, ``R`` identity.
+    With :func:`frame_transform` Foxglove's Image panel draws the scan on the image."""
+    p = np.asarray(p_rect, dtype=float).reshape(3, 4)
+    return CameraCalibration(timestamp=stamp(ns), frame_id=frame_id, width=int(size[0]),
+                             height=int(size[1]), distortion_model="plumb_bob",
+                             D=[0.0] * 5, K=p[:, :3].ravel().tolist(),
+                             R=np.eye(3).ravel().tolist(), P=p.ravel().tolist())  # fmt: skip
+
+
+def frame_transform(
+    parent_from_child: np.ndarray, ns: int, parent: str, child: str
+) -> FrameTransform:
+    """The pose of frame ``child`` in frame ``parent`` (``parent_from_child``: 4 × 4, metres;
+    its rotation made orthonormal) as a ``foxglove.FrameTransform``."""
+    m = np.asarray(parent_from_child, dtype=float)
+    x, y, z, w = Rotation.from_matrix(m[:3, :3]).as_quat()
+    t = m[:3, 3]
+    return FrameTransform(timestamp=stamp(ns), parent_frame_id=parent, child_frame_id=child,
+                          translation=Vector3(x=t[0], y=t[1], z=t[2]),
+                          rotation=Quaternion(x=x, y=y, z=z, w=w))  # fmt: skip
 
 
 def box_label(row: Any) -> str:
