@@ -267,3 +267,11 @@ def test_minus_inf_is_invalid_unless_read_as_ratio_one(tmp_path: Path, side) -> 
             [expected] * 4, nan_ok=True
         )
         assert own.loc[1, "camera_ratio"] == pytest.approx(1 + 0.1 / 14.1119)
+
+
+def test_with_a_folder_that_is_no_sweep_is_one_message(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        cli.main([str(CEDRIC), "--with", str(tmp_path), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == cli.BAD_INPUT
+    assert err == f"ttc-bench judge: {tmp_path}: no runs/ folder: not a sweep folder\n"

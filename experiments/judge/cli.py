@@ -10,6 +10,7 @@ from pathlib import Path
 
 import matplotlib
 
+from experiments import store
 from experiments.judge.harness import (
     RESULTS_DIR,
     HarnessSide,
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
         last = side.last if last < 0 else min(last, side.last)
         external = read_inputs(files, names, max(first, side.first), last, side.reference,
                                convention, args.minus_inf_is_ratio_one)  # fmt: skip
-    except (InputError, ValueError, FileNotFoundError) as exc:
+    except (InputError, ValueError, FileNotFoundError, store.StoreError) as exc:
         print(f"ttc-bench judge: {exc}", file=sys.stderr)
         sys.exit(BAD_INPUT)
     kwargs = {"n_boot": args.n_boot} if args.n_boot else {}
