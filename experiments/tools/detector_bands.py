@@ -1,9 +1,10 @@
 """Boxes per frame by lidar distance band and milliseconds per frame of object detectors.
 
 For each recording and each detector setting (``objects=...``, ``objects.tiles=N``): every
-frame's boxes (:func:`ttc.features.objects.detect_objects`, timed on one OpenCV thread) and
-each box's lidar distance (its own points' nearest compact depth group,
-:func:`experiments.reference_store.recording_boxes`, the every-object code's association).
+frame's boxes (:func:`ttc.features.objects.detect_objects`, timed on one OpenCV thread: the
+mean over the frames) and each box's lidar distance (its own points' nearest compact depth
+group, :func:`experiments.reference_store.recording_boxes`, the every-object code's
+association).
 Prints a markdown table (docs/features.md "Object detectors")::
 
     python -m experiments.tools.detector_bands --out detector_bands.csv
@@ -39,7 +40,7 @@ RECORDINGS = {
 DETECTORS = {
     "yolov3_tiny": ["objects=yolov3_tiny"],
     "yolov3_tiny, 4 tiles": ["objects=yolov3_tiny", "objects.tiles=4"],
-    "ssd_mobilenet_v2": ["objects=ssd_mobilenet_v2"],
+    "ssd_mobilenet_v2, 1 tile": ["objects=ssd_mobilenet_v2", "objects.tiles=1"],
     "ssd_mobilenet_v2, 3 tiles": ["objects=ssd_mobilenet_v2", "objects.tiles=3"],
     "ssd_mobilenet_v2, 4 tiles": ["objects=ssd_mobilenet_v2", "objects.tiles=4"],
 }
