@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from tests.test_report import make_report, make_sweep, shared_root
-from ttc.evaluation.verdict import has_lead, objects_verdict, supported_level
+from ttc.evaluation.verdict import has_lead, level_rows, objects_verdict, supported_level
 
 
 def _objects(levels: dict[str, list[int]]) -> pd.DataFrame:
@@ -44,6 +44,8 @@ def test_the_strictest_level_with_enough_pairs_leads() -> None:
     sentence = objects_verdict(table, min_pairs=20)
     assert "level `moderate`: 2 of 3 settings are tied for first" in sentence
     assert "`s0`, has a score of 0.10" in sentence and "over 30 judged pairs" in sentence
+    assert "the strictest KITTI level" in sentence
+    assert "read this ranking with care" in objects_verdict(table, min_pairs=1000)
 
 
 class _Text(HTMLParser):
@@ -102,8 +104,10 @@ def test_a_recording_without_a_lead_leads_with_every_object(report_0009: Path) -
     opening = " ".join(index.paragraphs[:3])
     assert "no lead vehicle was judged" in opening
     assert "Every object, level" in opening and "tied for first" in opening
-    best = objects.sort_values("rank").iloc[0]["setting"]
-    assert best in opening
+    level = supported_level(objects)
+    assert level in ("easy", "moderate", "hard", "all")
+    best = level_rows(objects, level).sort_values("rank").iloc[0]["setting"]
+    assert f"level {level}:" in opening and best in opening
     assert "objects.html" in index.links
     # the every-object page: the verdict, objects.md's tables, the ranking table, the figure
     page = report_0009 / "html" / "objects.html"

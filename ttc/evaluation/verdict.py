@@ -30,6 +30,12 @@ LEVEL_REASON = (
     "at least 40 px high (easy) or 25 px (moderate, hard), so both the camera's scale change and "
     "the lidar reference are measurable there; on tiny far boxes both are fragile"
 )
+#: Why every box leads when no level has enough pairs.
+ALL_REASON = (
+    "no KITTI level (easy, moderate, hard) has {n} judged pairs per setting, so every box is "
+    "ranked, tiny far boxes included, where both the camera's scale change and the lidar "
+    "reference are fragile: read this ranking with care"
+)
 
 
 def has_lead(ranking: pd.DataFrame) -> bool:
@@ -81,5 +87,5 @@ def objects_verdict(objects_ranking: pd.DataFrame, min_pairs: int = MIN_LEVEL_PA
         f"first**; the first, `{best['setting']}`, has a score of {best['score']:.2f} (mean capped "
         f"relative camera TTC error, an invalid estimate 1; rank interval "
         f"{best['rank_lo']:.0f}–{best['rank_hi']:.0f}) over {int(best['n_pairs'])} judged pairs. "
-        f"Why this level: {LEVEL_REASON.format(n=min_pairs)}."
+        f"Why this level: {(ALL_REASON if level == 'all' else LEVEL_REASON).format(n=min_pairs)}."
     )
