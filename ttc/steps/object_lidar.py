@@ -61,6 +61,13 @@ SPREAD_QUANTILES = (0.05, 0.95)
 #: Points within this many pixels outside a shrunk box are let in one at a time to see how
 #: sure its face is (a 2 cm move is 0.3 px at 45 m, 1.4 px at 10 m).
 EDGE_PX = 1.0
+#: A move (m) of the whole scan an object's face must withstand to be sure: a calibration
+#: error's size (kitti2mcap's bag moves drive 0009's points by up to 0.8 px, ≈ 1.6 cm on the
+#: far cars). The scan is tried moved by this much left, right, up and down.
+MOVE_M = 0.02
+#: Points within this many pixels of a shrunk box are the ones a :data:`MOVE_M` move can
+#: bring in or out of it (2 cm is 4 px at 3.6 m; nearer objects fill their boxes).
+NEAR_PX = 4.0
 
 
 @dataclass(frozen=True)
@@ -99,15 +106,19 @@ class ObjectLidarParams:
             raise ValueError(f"0 <= min_fraction <= 1, support_scale_m >= 0, unsure_m > 0: {self}")
 
 
-def object_scan_mask(points: np.ndarray, params: ObjectLidarParams) -> np.ndarray:
-    """(N,) bool: the rows of ``points`` (N × ≥3, m) that can lie on a vehicle in view."""
+def object_scan_mask(
+    points: np.ndarray, params: ObjectLidarParams, margin: float = MOVE_M
+) -> np.ndarray:
+    """(N,) bool: the rows of ``points`` (N × ≥3, m) that can lie on a vehicle in view, and
+    those within ``margin`` (m) beyond the range and height limits: :func:`associate_objects`
+    keeps only the ones inside as objects' points and tries the scan moved by ``margin``."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
     return (
-        (x >= params.min_x)
-        & (x <= params.max_x)
-        & (np.abs(y) <= x)
-        & (z >= params.min_z)
-        & (z <= params.max_z)
+        (x >= params.min_x - margin)
+        & (x <= params.max_x + margin)
+        & (np.abs(y) <= x + margin)
+        & (z >= params.min_z - margin)
+        & (z <= params.max_z + margin)
     )
 
 
@@ -333,8 +344,10 @@ def associate_objects(
         return ObjectAssociation(owner, distance, spread, n_points, n_frustum, sd, unsure)
     uv = project_to_image(points[:, :3], velo_to_image)
     boxes = shrink_rois(rois, shrink)
-    inside = points_in_rois(uv, boxes)  # (N, M) bool
-    edge = points_in_rois(uv, boxes + [-EDGE_PX, -EDGE_PX, 2 * EDGE_PX, 2 * EDGE_PX]) & ~inside
+    member = object_scan_mask(points, params, margin=0.0)[:, None]
+    inside = points_in_rois(uv, boxes) & member  # (N, M) bool
+    edge = points_in_rois(uv, _grown(boxes, EDGE_PX)) & member & ~inside
+    near_box = points_in_rois(uv, _grown(boxes, NEAR_PX))
     x = np.asarray(points[:, 0], dtype=np.float64)
     frusta = [np.flatnonzero(inside[:, b]) for b in range(m)]
     n_frustum[:] = [len(f) for f in frusta]
@@ -355,4 +368,37 @@ def associate_objects(
         )
         outside = np.flatnonzero(edge[:, b] & ~claimed)
         sd[b], unsure[b] = face_sensitivity(np.sort(x[free]), params, x[outside])
+        if not unsure[b]:
+            mine_or_free = near_box[:, b] & (~claimed | (owner == b))
+            unsure[b] = _moves_face(points[mine_or_free, :3], velo_to_image, boxes[b], params)
     return ObjectAssociation(owner, distance, spread, n_points, n_frustum, sd, unsure)
+
+
+def _grown(boxes: np.ndarray, px: float) -> np.ndarray:
+    """``boxes`` (M × 4: x, y, w, h px) grown by ``px`` on every side."""
+    return boxes + np.array([-px, -px, 2 * px, 2 * px])
+
+
+def _moves_face(
+    points: np.ndarray, velo_to_image: np.ndarray, box: np.ndarray, params: ObjectLidarParams
+) -> bool:
+    """Whether moving ``points`` (K × 3, m: the ones near the shrunk ``box`` (4,) px that no
+    other box claimed) by :data:`MOVE_M` left, right, up or down moves the face of the points
+    then inside the box and the height band by more than ``unsure_m`` (or loses it): many
+    points cross a box edge or the band's floor together (a ring of bumper returns at the
+    floor, the column of a box's edge) where one point in or out changes little."""
+    face = _face_of(np.sort(points[_inside(points, velo_to_image, box, params), 0]), params)
+    for move in MOVE_M * np.array([[0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]):
+        moved = points + move
+        now = _face_of(np.sort(moved[_inside(moved, velo_to_image, box, params), 0]), params)
+        if not abs(now - face) <= params.unsure_m:
+            return True
+    return False
+
+
+def _inside(
+    points: np.ndarray, velo_to_image: np.ndarray, box: np.ndarray, params: ObjectLidarParams
+) -> np.ndarray:
+    """(K,) bool: ``points`` (K × 3, m) inside the shrunk ``box`` (4,) px and the limits."""
+    inside = points_in_rois(project_to_image(points, velo_to_image), box[None, :])[:, 0]
+    return inside & object_scan_mask(points, params, margin=0.0)
