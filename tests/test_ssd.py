@@ -8,6 +8,8 @@ import hashlib
 import io
 import json
 import os
+import subprocess
+import sys
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -251,3 +253,23 @@ def test_the_every_object_report_judges_one_detectors_runs(capsys):
     assert "2 runs of other detector settings are not judged" in capsys.readouterr().out
     alone = SweepData([], rows[:1], runs[:1], boxes=rows[:1])
     assert one_detector(alone) is alone
+
+
+def test_a_sweep_finds_the_cache_copy_in_its_workers(ssd_dir, data_dir, tmp_path):
+    """``python -m experiments.run -m ... objects=ssd_mobilenet_v2`` with the SSD files only in
+    the cache folder (no $TTC_SSD_MODEL_DIR, downloads pointed at a closed port): the main
+    process and the workers find the copy; the setting runs ok."""
+    cache = tmp_path / "cache"
+    (cache / "models").mkdir(parents=True)
+    (cache / "models" / SSD_MODEL).symlink_to(ssd_dir)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TTC_")}
+    env |= {"TTC_DATA_DIR": str(data_dir), "TTC_CACHE_DIR": str(cache), "TTC_JOBS": "1",
+            "TTC_RESULTS_DIR": str(tmp_path / "sweeps"), "TTC_BENCH_SERVER": "0",
+            weights.URL_ENV: "http://127.0.0.1:9/"}  # fmt: skip
+    argv = ["-m", "dataset=kitti_raw_0009", "dataset.last=2", f"objects={SSD_MODEL}",
+            "objects.tiles=2", "sweep_name=ssd"]  # fmt: skip
+    done = subprocess.run([sys.executable, "-m", "experiments.run", *argv], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "settings: 1 total, 1 ok" in done.stdout, done.stdout[-3000:]
+    assert "downloading" not in done.stdout
