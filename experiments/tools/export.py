@@ -93,9 +93,8 @@ def select_run(runs: pd.DataFrame, run: str | None, setting: str | None, sweep: 
     elif setting:
         values = setting.strip("/").split("/")
         if len(values) > len(AXES):
-            raise ValueError(
-                f"--setting {setting!r} has {len(values)} values, the axes are {len(AXES)}: {'/'.join(AXES)}"
-            )
+            axes = "/".join(AXES)
+            raise ValueError(f"--setting {setting!r} has {len(values)} values; the axes: {axes}")
         keep = np.ones(len(ok), dtype=bool)
         for axis, value in zip(AXES, values, strict=False):
             keep &= ok[axis].astype(str).to_numpy() == value if axis in ok else False
@@ -104,11 +103,11 @@ def select_run(runs: pd.DataFrame, run: str | None, setting: str | None, sweep: 
         found, what = ok, "no --run or --setting"
     if len(found) == 1:
         return str(found["run_id"].iloc[0])
+    shown = ok if found.empty else found  # the runs to pick from (20 at most)
     listing = "\n".join(f"  {r.run_id}  {'/'.join(str(getattr(r, a, '')) for a in AXES)}"
-                        for r in found.head(20).itertuples())  # fmt: skip
+                        for r in shown.head(20).itertuples())  # fmt: skip
     problem = "matches no ok run" if found.empty else f"matches {len(found)} runs"
-    return_all = listing or "\n".join(f"  {r}" for r in ok["run_id"].head(20))
-    raise ValueError(f"{sweep}: {what} {problem}; pick one with --run or --setting:\n{return_all}")
+    raise ValueError(f"{sweep}: {what} {problem}; pick one with --run or --setting:\n{listing}")
 
 
 def run_rows(sweep: Path, run_id: str) -> pd.DataFrame:

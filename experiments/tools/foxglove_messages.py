@@ -119,8 +119,7 @@ def point_cloud(points: np.ndarray, ns: int, frame_id: str) -> PointCloud:
         PackedElementField(name=name, offset=4 * k, type=PackedElementField.FLOAT32)
         for k, name in enumerate(CLOUD_FIELDS)
     ]
-    pose = Pose(position=Vector3(), orientation=None)
-    pose.orientation.w = 1.0
+    pose = Pose(position=Vector3(), orientation=Quaternion(w=1.0))
     return PointCloud(timestamp=stamp(ns), frame_id=frame_id, pose=pose, point_stride=16,
                       fields=fields, data=data.tobytes())  # fmt: skip
 
@@ -200,12 +199,10 @@ def scene_update(boxes: pd.DataFrame, ns: int, frame_id: str) -> SceneUpdate:
             continue
         x = float(row.distance_m)
         y = x * math.tan(math.radians(float(row.bearing_deg)))
-        pose = Pose(position=Vector3(x=x, y=y, z=0.0))
-        pose.orientation.w = 1.0
+        pose = Pose(position=Vector3(x=x, y=y, z=0.0), orientation=Quaternion(w=1.0))
         colour = LEAD_COLOUR if row.is_lead else BOX_COLOUR
         size = Vector3(x=MARKER_M, y=MARKER_M, z=MARKER_M)
-        label = Pose(position=Vector3(x=x, y=y, z=1.0))
-        label.orientation.w = 1.0
+        label = Pose(position=Vector3(x=x, y=y, z=1.0), orientation=Quaternion(w=1.0))
         out.entities.append(SceneEntity(
             timestamp=when, frame_id=frame_id, id=f"track {int(row.track_id)}", lifetime=life,
             cubes=[CubePrimitive(pose=pose, size=size, color=colour)],
