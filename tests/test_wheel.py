@@ -20,6 +20,7 @@ from setuptools import find_namespace_packages
 
 from experiments.cli import SUBCOMMANDS
 from tests.conftest import PROJECT_ROOT
+from ttc.features.model_files import SOURCES
 
 
 def test_pyproject_lists_every_package() -> None:
@@ -69,9 +70,8 @@ def test_the_wheel_runs_and_reports_from_any_folder(tmp_path: Path, data_dir: Pa
     assert build.returncode == 0, build.stderr[-2000:]
     wheel = next(dist.glob("ttc_bench-*.whl"))
     names = zipfile.ZipFile(wheel).namelist()
-    assert {"experiments/conf/config.yaml", "experiments/conf/download/yolov3_tiny.yaml"} <= {
-        *names
-    }
+    manifests = {f"experiments/conf/download/{m}.yaml" for m in SOURCES}  # every detector's
+    assert {"experiments/conf/config.yaml", *manifests} <= {*names}
     assert not any(n.startswith(("conf/", "tests/")) for n in names)
     # a fresh venv outside the checkout; its dependencies come from this one's site-packages
     # through a .pth line (offline; the checkout's editable finder is not processed from there)
