@@ -16,15 +16,9 @@ from ttc.engine.cache import StageCache
 from ttc.engine.stages import FrameStages
 from ttc.io.calibration import load_calibration
 from ttc.io.frames import frame_files, read_lidar_scan
-from ttc.steps.object_lidar import (
-    ObjectLidarParams,
-    associate_objects,
-    depth_groups,
-    face_sensitivity,
-    nearest_face,
-    object_group,
-    object_scan_mask,
-)
+from ttc.steps.object_face import face_sensitivity
+from ttc.steps.object_groups import depth_groups, nearest_face, object_group
+from ttc.steps.object_lidar import ObjectLidarParams, associate_objects, object_scan_mask
 
 PARAMS = ObjectLidarParams()
 #: The options of ``objects`` the far-box tests run with (YOLOv3-tiny, the default; a detector
