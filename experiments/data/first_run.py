@@ -110,12 +110,18 @@ def ensure_model_files(allowed: bool | None = None, model: str = BUNDLED_MODEL) 
     )
 
 
+def leaves_files(objects: ModelPaths) -> bool:
+    """Whether ``objects`` is a detector whose files the harness finds
+    (:data:`ttc.features.model_files.SOURCES`) and it leaves one of them to it."""
+    return objects.name in SOURCES and uses_bundled_files(objects)
+
+
 def setting_models(objects: ModelPaths, allowed: bool | None = None) -> Path | None:
     """In a job (a sweep's worker, a single run): the folder of the files ``objects`` leaves to
     the harness (:func:`experiments.data.weights.resolve_model_dir`), None when it names its
     own or none is found (the core then raises the model's one message). A failed download
     raises (the job records it)."""
-    if objects.name not in SOURCES or not uses_bundled_files(objects):
+    if not leaves_files(objects):
         return None
     allowed = downloads_allowed() if allowed is None else allowed
     return weights.resolve_model_dir(allowed=allowed, model=objects.name)
@@ -125,7 +131,7 @@ def ensure_setting_models(objects: ModelPaths, allowed: bool | None = None) -> P
     """:func:`ensure_model_files` of the detector ``objects`` names, when it leaves a file to
     the harness (a sweep's main process, a report, ``show``: one message and exit
     :data:`DOWNLOAD_FAILED` when the download fails); None otherwise."""
-    if objects.name not in SOURCES or not uses_bundled_files(objects):
+    if not leaves_files(objects):
         return None
     return ensure_model_files(allowed, objects.name)
 
