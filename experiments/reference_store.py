@@ -23,6 +23,7 @@ from ttc.evaluation.object_reference import object_reference
 from ttc.features.objects import clear_detector_cache, coco_names
 from ttc.io.calibration import load_calibration
 from ttc.io.ego_motion import EGO_SPEED
+from ttc.io.frame_errors import FrameDataError
 from ttc.io.frames import (
     file_identity,
     frame_files,
@@ -61,9 +62,14 @@ def _reference_key(sequence_dir: Path | BagSource, last: int, times: np.ndarray 
 
 
 def recording_scans(sequence_dir: Path | BagSource, last: int) -> Iterator[tuple[int, np.ndarray]]:
-    """``(frame, points)`` of frames 0..``last`` of a recording, one scan read at a time."""
+    """``(frame, points)`` of frames 0..``last`` of a recording, one scan read at a time; a
+    scan that cannot be read (a bag's damaged chunk, an unpaired camera message) is a frame
+    without points: a gap in the reference, like a scan without the lead."""
     for index in range(last + 1):
-        yield index, read_lidar_scan(frame_files(sequence_dir, index).scan).points
+        try:
+            yield index, read_lidar_scan(frame_files(sequence_dir, index).scan).points
+        except FrameDataError:
+            yield index, np.zeros((0, 4), dtype=np.float32)
 
 
 def reference_task(sequence_dir: Path | BagSource) -> Task:
@@ -151,7 +157,10 @@ def recording_boxes(
     parts = []
     for index in frames:
         stages.forget(keep=index)  # the frames done: their boxes and scans freed as it goes
-        obj, lid = (cache.get(t).arrays for t in (stages.objects(index), stages.lidar(index)))
+        try:
+            obj, lid = (cache.get(t).arrays for t in (stages.objects(index), stages.lidar(index)))
+        except FrameDataError:  # an unreadable frame (a bag's damaged chunk): no boxes
+            continue
         roi = obj["roi"]
         near = associate_objects(lid["object_points"], calib.velo_to_image, roi,
                                  settings.lidar_shrink, settings.object_lidar)  # fmt: skip

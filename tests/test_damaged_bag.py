@@ -14,6 +14,7 @@ from mcap.reader import make_reader
 
 from experiments.config import frame_range_from_config, settings_from_config
 from experiments.records import lost_frames
+from experiments.reference_store import recording_boxes, sequence_reference
 from tests.ros2_bags import IMAGE, LIDAR, bag_config, make_bag
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting
@@ -85,3 +86,9 @@ def test_a_damaged_chunk_costs_only_its_frames(tmp_path: Path) -> None:
     assert len(ok) == len(expected) > 0
     pd.testing.assert_frame_equal(ok, expected)
     assert np.isfinite(ok["object_distance_m"]).any()
+    # the references over the damaged bag: the lost frames are gaps, the others are read
+    source, cache = frame_range_from_config(cfg).sequence_dir, StageCache(tmp_path / "cache")
+    lead = sequence_reference(source, cache)
+    assert list(lead["frame"]) == list(range(16))
+    boxes, times, _ = recording_boxes(source, settings_from_config(cfg), cache)
+    assert set(boxes["frame"]) == set(range(16)) - hit and len(times) == 16

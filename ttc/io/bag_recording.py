@@ -187,7 +187,12 @@ def unpaired_errors(source: BagSource, indices: list[int]) -> dict[int, FrameDat
 def message_identity(ref: BagMessage) -> tuple[str, int, int]:
     """(bag files + topic + header stamp, size, mtime): a message's identity for caching."""
     files = file_identities(ref.source.path)
-    stamp = header_stamp_ns(bag_index(ref.source), ref.topic, ref.position)
+    # a frame without a readable scan (none paired, or in a damaged chunk): "none", stable
+    stamp = (
+        header_stamp_ns(bag_index(ref.source), ref.topic, ref.position)
+        if ref.position >= 0
+        else "none"
+    )
     names = "|".join(f[0] for f in files)
     return f"{names}#{ref.topic}@{stamp}", sum(f[1] for f in files), max(f[2] for f in files)
 
