@@ -57,15 +57,20 @@ def setting_config(cfg: DictConfig) -> dict[str, Any]:
 def axis_values(setting: dict[str, Any]) -> dict[str, str]:
     """The value recorded on every axis of a :func:`setting_config`: the option's name
     (``none`` for the descriptor and selector of ``matcher=klt``), the detector's with
-    ``+subpixel`` when its keypoints are refined, so reports tell the two apart."""
+    ``+subpixel`` when its keypoints are refined, the object detector's with ``+tiles<N>`` when
+    it runs on N > 1 tiles, so reports tell them apart."""
     values = {axis: str(setting[axis]["name"]) for axis in AXES}
     if setting["detector"].get("subpixel"):
         values["detector"] += SUBPIXEL_SUFFIX
+    if (tiles := setting["objects"].get("tiles", 1)) != 1:
+        values["objects"] += f"{TILES_SUFFIX}{tiles}"
     return values
 
 
 #: Appended to the recorded detector name of a setting with ``detector.subpixel=true``.
 SUBPIXEL_SUFFIX = "+subpixel"
+#: Appended (with the count) to the recorded object detector of a setting with tiles.
+TILES_SUFFIX = "+tiles"
 
 #: Options that leave a setting's numbers as they were before the option existed, at their
 #: "off" value: left out of the run id, so the ids of settings stored before stay the same.

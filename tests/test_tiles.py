@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from experiments.identity import setting_config, setting_hash
+from experiments.identity import axis_values, setting_config, setting_hash
 from tests.test_beyond_rubric import composed
 from ttc.engine.stages import stage_params
 from ttc.features.objects import ObjectDetectorParams, detect_objects
@@ -108,6 +108,8 @@ def test_tiles_1_is_todays_setting_and_run_id() -> None:
     tiled = composed(["dataset.last=3", "objects.tiles=3"])
     assert setting_hash(setting_config(default)) == setting_hash(setting_config(explicit))
     assert setting_hash(setting_config(tiled)) != setting_hash(setting_config(default))
+    assert axis_values(setting_config(default))["objects"] == "yolov3_tiny"  # as recorded before
+    assert axis_values(setting_config(tiled))["objects"] == "yolov3_tiny+tiles3"  # told apart
     key = stage_params(ObjectDetectorParams(), "objects")  # the objects stage's cache key
     assert "tiles" not in key and "tile_overlap" not in key
     assert stage_params(ObjectDetectorParams(tiles=3), "objects")["tiles"] == 3
