@@ -233,11 +233,12 @@ def test_the_real_network_is_yolos_size_of_answer(ssd_dir, data_dir, monkeypatch
     assert names == [SSD_FILES["cfg"], SSD_FILES["weights"]]
 
 
-def test_the_every_object_report_judges_one_detectors_runs(capsys):
-    """A recording's runs of two detectors: the every-object report keeps the runs of the
-    detector most of them use (its boxes make the reference; box numbers of another detector
-    would be judged against the wrong boxes), and says so; one detector: all runs."""
-    from experiments.report.drives_report import one_detector  # noqa: PLC0415
+def test_the_every_object_report_splits_the_runs_by_detector():
+    """A recording's runs of three detector settings: one part per ``objects`` entry (each is
+    judged against its own boxes: box numbers of another detector would be judged against the
+    wrong boxes), the detector most runs use first, named by the recorded axis value; one
+    detector: all runs, as they are."""
+    from experiments.report.drives_report import by_detector  # noqa: PLC0415
     from experiments.report.load import SweepData  # noqa: PLC0415
 
     def config(objects: list[str]) -> str:
@@ -245,14 +246,18 @@ def test_the_every_object_report_judges_one_detectors_runs(capsys):
 
     yolo, ssd = config([]), config([f"objects={SSD_MODEL}"])
     tiled = config(["objects.tiles=4"])  # YOLOv3-tiny on tiles: other boxes, other numbers
-    runs = pd.DataFrame({"run_id": ["a", "b", "c", "d"], "config": [ssd, yolo, tiled, yolo]})
+    runs = pd.DataFrame({"run_id": ["a", "b", "c", "d"], "config": [ssd, yolo, tiled, yolo],
+                         "objects": [f"{SSD_MODEL}+tiles4", "yolov3_tiny", "yolov3_tiny+tiles4",
+                                     "yolov3_tiny"]})  # fmt: skip
     rows = pd.DataFrame({"run_id": ["a", "b", "c", "d", "d"], "frame": [1, 1, 1, 1, 2]})
-    data = SweepData([], rows, runs, boxes=rows)
-    kept = one_detector(data)
-    assert list(kept.runs["run_id"]) == ["b", "d"] and list(kept.boxes["run_id"]) == ["b", "d", "d"]
-    assert "2 runs of other detector settings are not judged" in capsys.readouterr().out
+    parts = by_detector(SweepData([], rows, runs, boxes=rows))
+    assert list(parts)[0] == "yolov3_tiny"
+    assert sorted(parts) == sorted([f"{SSD_MODEL}+tiles4", "yolov3_tiny", "yolov3_tiny+tiles4"])
+    assert list(parts["yolov3_tiny"].runs["run_id"]) == ["b", "d"]
+    assert list(parts["yolov3_tiny"].boxes["run_id"]) == ["b", "d", "d"]
+    assert list(parts[f"{SSD_MODEL}+tiles4"].frames["run_id"]) == ["a"]
     alone = SweepData([], rows[:1], runs[:1], boxes=rows[:1])
-    assert one_detector(alone) is alone
+    assert by_detector(alone) == {f"{SSD_MODEL}+tiles4": alone}
 
 
 def test_a_sweep_finds_the_cache_copy_in_its_workers(ssd_dir, data_dir, tmp_path):

@@ -27,6 +27,7 @@ from experiments.report import (
     reference_report,
     truth_report,
 )
+from experiments.report.detectors_report import objects_by_detector
 from experiments.report.html import html_report
 from experiments.report.load import (
     Context,
@@ -120,8 +121,8 @@ def build_report(
         lap("fp6")
         fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
         lap("fp7")
-        objects = (objects_report.recording_objects_report(drives_report.one_detector(data), ctx,
-                                                           out) if has_rows else None)  # fmt: skip
+        by_detector = objects_by_detector(data, ctx, out) if has_rows else {}
+        objects = next(iter(by_detector.values()), None)  # the detector most runs use
         lap("objects")
         index = (
             html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables,
@@ -167,8 +168,8 @@ def build_drives_report(
         fp6_tables = fp6.fp6_report(part, reference, ctx, folder, pictures)
         ctx.drop_details()
         fp7_tables = fp7.fp7_report(part, reference, folder)
-        one = drives_report.one_detector(part)  # its reference: one detector's boxes
-        object_rankings[name] = objects_report.recording_objects_report(one, ctx, folder)
+        by_detector = objects_by_detector(part, ctx, folder)  # each against its own boxes
+        object_rankings[name] = next(iter(by_detector.values()), None)
         if html:
             html_report(part, reference, fp5_table, fp6_tables, folder, fp7_tables,
                         objects_ranking=object_rankings[name])  # fmt: skip

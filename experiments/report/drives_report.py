@@ -25,44 +25,42 @@ RANKING_COLUMNS = ["drive", "rank", "rank_lo", "rank_hi", "setting", "run_id", *
                    "n_frames", "n_judged"]  # fmt: skip
 
 
-def split_by_recording(data: SweepData) -> dict[str, SweepData]:
-    """One :class:`SweepData` per recording of ``data`` (by recording id; sorted by folder)."""
-    parts = {}
-    for sequence, ids in run_ids_by_recording(data.runs).items():
-        runs = data.runs[data.runs["run_id"].isin(ids)].reset_index(drop=True)
-        frames = data.frames
-        if not frames.empty:
-            frames = frames[frames["run_id"].isin(ids)].reset_index(drop=True)
-        boxes = data.boxes
-        if not boxes.empty:
-            boxes = boxes[boxes["run_id"].isin(ids)].reset_index(drop=True)
-        parts[recording_id(sequence)] = SweepData(
-            data.dirs, frames, runs, data.overrides, data.repeated, boxes
-        )
-    return parts
+def runs_of(data: SweepData, ids: set[str]) -> SweepData:
+    """The part of ``data`` that holds the runs ``ids``: their records, rows and box pairs."""
 
+    def pick(table: pd.DataFrame) -> pd.DataFrame:
+        return table if table.empty else table[table["run_id"].isin(ids)].reset_index(drop=True)
 
-def one_detector(data: SweepData) -> SweepData:
-    """The runs of ``data`` (one recording) with its most frequent detector setting (the whole
-    ``objects`` entry: model, tiles, thresholds; ties: the first in sorted order), for the
-    every-object report: its reference is made of one detector's boxes and a pair is judged by
-    its box numbers, so the runs of another detector cannot be judged against it. A line says
-    which runs were left out; ``data`` itself when it has one detector."""
-    objects = data.runs["config"].map(
-        lambda c: json.dumps(json.loads(c).get("objects"), sort_keys=True)
-    )
-    counts = objects.value_counts()
-    if len(counts) <= 1:
-        return data
-    kept = sorted(counts.index[counts == counts.max()])[0]
-    ids = set(data.runs.loc[objects == kept, "run_id"])
-    name = json.loads(kept)["name"]
-    print(f"every object: judged against the boxes of {name} ({len(ids)} runs); "
-          f"{len(objects) - len(ids)} runs of other detector settings are not judged there "
-          "(one object reference per detector: not yet)")  # fmt: skip
-    pick = lambda t: t[t["run_id"].isin(ids)].reset_index(drop=True) if not t.empty else t  # noqa: E731
     return SweepData(data.dirs, pick(data.frames), pick(data.runs), data.overrides,
                      data.repeated, pick(data.boxes))  # fmt: skip
+
+
+def split_by_recording(data: SweepData) -> dict[str, SweepData]:
+    """One :class:`SweepData` per recording of ``data`` (by recording id; sorted by folder)."""
+    return {recording_id(sequence): runs_of(data, set(ids))
+            for sequence, ids in run_ids_by_recording(data.runs).items()}  # fmt: skip
+
+
+def by_detector(data: SweepData) -> dict[str, SweepData]:
+    """The runs of ``data`` (one recording) per object-detector setting (the whole ``objects``
+    entry: model, tiles, thresholds), the detector most runs use first (ties: sorted), each
+    named by its recorded axis value (``yolov3_tiny``, ``ssd_mobilenet_v2+tiles4``; the
+    entry's JSON where two entries share a name). The every-object report judges each part
+    against its own detector's boxes: a pair is judged by its box numbers, so the runs of two
+    detectors cannot share one reference."""
+    entries = data.runs["config"].map(
+        lambda c: json.dumps(json.loads(c).get("objects"), sort_keys=True)
+    )
+    counts = entries.value_counts()
+    order = sorted(counts.index, key=lambda e: (-counts[e], e))
+    names = {e: data.runs.loc[entries == e, "objects"].iloc[0] if "objects" in data.runs
+             else json.loads(e)["name"] for e in order}  # fmt: skip
+    if len(set(names.values())) < len(names):
+        names = {e: e for e in order}
+    if len(order) <= 1:
+        return {str(names[order[0]]) if order else "": data}
+    return {str(names[e]): runs_of(data, set(data.runs.loc[entries == e, "run_id"]))
+            for e in order}  # fmt: skip
 
 
 def drive_references(data: SweepData, ctx: Context) -> dict[str, pd.DataFrame]:

@@ -223,7 +223,7 @@ def cross_recording_objects(rankings: dict[str, pd.DataFrame | None], out: Path)
     each recording's :func:`objects_report` ranking by recording name; None with fewer than
     two recordings. With rankings per level, ``objects_recordings_levels.csv`` holds τ per
     level too (the ``.md`` a table of it)."""
-    levels = _levels_tau({n: r for n, r in rankings.items() if r is not None})
+    levels = levels_tau({n: r for n, r in rankings.items() if r is not None})
     rankings = {n: _all_level(r) for n, r in rankings.items() if r is not None}
     names = [n for n, r in rankings.items() if not r.empty]
     if len(names) < 2:
@@ -255,7 +255,7 @@ def cross_recording_objects(rankings: dict[str, pd.DataFrame | None], out: Path)
     return write_text(text, out / "objects_recordings.md")
 
 
-def _levels_tau(rankings: dict[str, pd.DataFrame]) -> pd.DataFrame:
+def levels_tau(rankings: dict[str, pd.DataFrame]) -> pd.DataFrame:
     """Kendall's τ between every two recordings' rankings of each level (rankings with a
     ``difficulty`` column only): ``difficulty``, ``recording_a``, ``recording_b``,
     ``n_settings``, ``kendall_tau``."""
