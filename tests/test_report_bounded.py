@@ -5,11 +5,6 @@ rows a report keeps are the ones :func:`ttc.evaluation.lead_rows` picks."""
 
 from __future__ import annotations
 
-import re
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pyarrow as pa
@@ -29,63 +24,7 @@ from experiments.report.judged_rows import (
     row_columns,
     stacked,
 )
-from tests.conftest import PROJECT_ROOT, data_root
-from tests.test_report import env_for, make_report, make_sweep, shared_root
 from ttc import evaluation as ev
-
-#: The last commit whose report read every row of every run into one pandas frame.
-BEFORE = "a6c2b20"
-#: Header lines that name the report's own run (its code version, date, machine, packages).
-PROVENANCE = re.compile(
-    r"^\| (code version \(report\)|report date|machine \(report\)|package versions \(report\)) \|"
-)
-
-
-@pytest.fixture(scope="session")
-def mixed_sweep(tmp_path_factory) -> tuple[Path, Path]:
-    """2 detectors × 2 descriptors × 2 lidar estimators × fusion none / kalman_cv on frames
-    0–5 (every section of a recording's report: FP.5, FP.6, FP.7, objects): (root, sweep)."""
-    root = shared_root(tmp_path_factory)
-    args = ["-m", "detector=fast,orb", "descriptor=brief,brisk", "lidar_ttc=median,cluster",
-            "fusion=none,kalman_cv", "dataset.last=5", "sweep_name=mixed"]  # fmt: skip
-    return root, make_sweep(root, args, "mixed")
-
-
-def report_before(root: Path, sweep: Path, out: Path, clone: Path) -> Path:
-    """``python -m experiments.report`` of the code at :data:`BEFORE` (a clone of this
-    repository) into ``out``; skips when the repository lacks that commit (a shallow clone)."""
-    if subprocess.run(["git", "cat-file", "-e", f"{BEFORE}^{{commit}}"], cwd=PROJECT_ROOT,
-                      capture_output=True).returncode:  # fmt: skip
-        pytest.skip(f"commit {BEFORE} is not in this repository (shallow clone?)")
-    subprocess.run(["git", "clone", "-q", "--shared", "--no-checkout", str(PROJECT_ROOT),
-                    str(clone)], check=True)  # fmt: skip
-    subprocess.run(["git", "checkout", "-q", BEFORE], cwd=clone, check=True)
-    env = {**env_for(root), "PYTHONPATH": str(clone), "TTC_DATA_DIR": str(data_root())}
-    args = [str(sweep), "--out", str(out), "--no-pictures", "--no-html"]
-    done = subprocess.run([sys.executable, "-m", "experiments.report", *args], cwd=clone,
-                          env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
-    return out
-
-
-def tables(folder: Path) -> dict[str, list[str]]:
-    """Every CSV and markdown file of a report folder by name: its lines, the report's own
-    provenance lines left out."""
-    return {p.name: [line for line in p.read_text(encoding="utf-8").splitlines()
-                     if not PROVENANCE.match(line)]
-            for p in sorted([*folder.glob("*.csv"), *folder.glob("*.md")])}  # fmt: skip
-
-
-@pytest.mark.slow
-def test_tables_identical_to_the_report_that_held_every_row(mixed_sweep, tmp_path: Path) -> None:
-    root, sweep = mixed_sweep
-    before = report_before(root, sweep, tmp_path / "before", tmp_path / "clone")
-    after = make_report(root, [sweep], tmp_path / "after", "--no-pictures", "--no-html")
-    old, new = tables(before), tables(after)
-    assert {"fp5_lidar_ttc.csv", "fp6_ranking.csv", "fp7_fusion.csv", "objects.csv"} <= set(new)
-    assert sorted(new) == sorted(old)
-    for name, lines in new.items():
-        assert lines == old[name], f"{name} differs from the report at {BEFORE}"
 
 
 def test_judged_mask_keeps_the_rows_lead_rows_picks() -> None:
