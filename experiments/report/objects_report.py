@@ -147,10 +147,12 @@ def _page(
     counts = counts[order]
     lines = [
         provenance_markdown(data, "Every object: TTC judged per tracked vehicle"),
-        "Every YOLO box gets its own lidar points (the nearest compact group of its frustum), "
-        "boxes are linked frame to frame (IoU), and each track's nearest-face distances are "
-        "smoothed like the lead's reference: TTC = distance to the object's plane / closing "
-        "speed. A pair is judged where the reference TTC is known to 10 %.",
+        "Every detector box gets its own lidar points (the best-supported depth group of its "
+        "frustum, split where the depth jumps by more than a gap that grows with range), boxes "
+        "are linked frame to frame (IoU), and each track's nearest-face distances are smoothed "
+        "like the lead's reference, with one-sided fits at the track's ends: TTC = distance to "
+        "the object's plane / closing speed. A pair is judged where the reference TTC is known "
+        "to 10 %.",
         "",
         f"## Tracks by role ({reference['track_id'].nunique()} tracks)",
         "",

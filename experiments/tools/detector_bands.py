@@ -2,7 +2,7 @@
 
 For each recording and each detector setting (``objects=...``, ``objects.tiles=N``): every
 frame's boxes (:func:`ttc.features.objects.detect_objects`, timed on one OpenCV thread: the
-mean over the frames) and each box's lidar distance (its own points' nearest compact depth
+mean over the frames) and each box's lidar distance (its own points' best-supported depth
 group, :func:`experiments.reference_store.recording_boxes`, the every-object code's
 association).
 Prints a markdown table (docs/features.md "Object detectors")::
