@@ -37,14 +37,15 @@ from ttc.steps import fusion
 from ttc.steps.fusion import FusionParams
 
 #: Run ids of settings stored in sweeps before sub-pixel keypoints, KLT and fusion existed
-#: (commit 50ad91a): those options must not change them. Issue 30 changed every id on purpose
-#: (every row's object columns; see tests/test_run_ids.py): these are the ids since.
+#: (commit 50ad91a): those options must not change them. Issues 30 and 50 changed every id on
+#: purpose (every row's object columns; the object lidar's keys and the box-relative camera
+#: pair rule; see tests/test_run_ids.py): these are the ids since.
 STORED_RUN_IDS = {
-    (): "1b3a9f143f702ffc",
-    ("detector=orb", "descriptor=orb", "matcher=flann", "selector=nn"): "e5200ebafd0c35f2",
-    ("detector=harris", "descriptor=sift", "dataset=kitti_0_77"): "8379a7996dc907e4",
+    (): "50a4120e621d0272",
+    ("detector=orb", "descriptor=orb", "matcher=flann", "selector=nn"): "842636907a87f6d3",
+    ("detector=harris", "descriptor=sift", "dataset=kitti_0_77"): "acfaf8dda028b048",
     ("detector=sift", "descriptor=sift", "lidar_ttc=cluster", "keypoint_filter=iqr"):
-        "8f2d2d403d1b75c4",
+        "1a88e42900c63c2c",
 }  # fmt: skip
 RUBRIC_CSV = PROJECT_ROOT / "results" / "kitti_0_18" / "fp6_camera_ttc.csv"
 

@@ -22,7 +22,7 @@ from experiments.config import (
     settings_from_config,
 )
 from tests.conftest import PROJECT_ROOT
-from tests.test_run_ids import PINNED
+from tests.test_run_ids import RUBRIC_PINNED
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_settings
 from ttc.rows import MEMBER
@@ -111,10 +111,10 @@ def test_the_rubric_is_one_named_option_on_every_recording(dataset: str) -> None
     assert rule_of(cfg) == (80.0, 0.0)  # the command line still wins
 
 
-@pytest.mark.parametrize("overrides", list(PINNED), ids=lambda o: " ".join(o) or "default")
+@pytest.mark.parametrize("overrides", list(RUBRIC_PINNED), ids=lambda o: " ".join(o) or "default")
 def test_the_rubric_option_keeps_the_stored_run_ids(overrides: tuple[str, ...]) -> None:
-    """The settings stored with 100 px (every pinned one) keep their ids under the option."""
-    assert run_id(composed(["+camera_pairs=rubric", *overrides])) == PINNED[overrides]
+    """The settings stored with 100 px keep their ids under the option."""
+    assert run_id(composed(["+camera_pairs=rubric", *overrides])) == RUBRIC_PINNED[overrides]
 
 
 @pytest.mark.parametrize("dataset", RECORDINGS)

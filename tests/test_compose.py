@@ -130,11 +130,12 @@ def test_every_experiment(hydra_env, experiment) -> None:
 
 
 def test_a_recording_that_sets_other_groups_is_a_part_too(hydra_env) -> None:
-    """``dataset=kitti_odometry`` (``@package _global_``) also sets the lidar crop and the
-    camera pair distance (``dataset=kitti_raw_0009`` the camera pair distance): its variant is a part that swaps those keys in too, so the jobs of
+    """``dataset=kitti_odometry`` (``@package _global_``) also sets the lidar crop: its
+    variant is a part that swaps those keys in too, so the jobs of
     a sweep over recordings are derived (the recordings experiment planned 1512 settings in
     ~95 s with one Hydra composition per sequence-04 job), except where another differing
-    override sets the same keys (``camera_ttc``: Hydra's composition, in its order)."""
+    override sets the same keys (a recording's config that sets ``camera_ttc``, none since the
+    box-relative pair rule of every recording: Hydra's composition, in its order)."""
     loader, master_of = hydra_env
     master = master_of([])
     axes = [("dataset=kitti_0_18", "dataset=kitti_odometry", "dataset=kitti_raw_0009"),
@@ -145,7 +146,7 @@ def test_a_recording_that_sets_other_groups_is_a_part_too(hydra_env) -> None:
     for job in jobs:
         same_as_hydra(composer, job)
     derived = [j for j in jobs if composer.parts(j) is not None]
-    sets_camera = ("dataset=kitti_odometry", "dataset=kitti_raw_0009")
+    sets_camera = [j for j in axes[0] if "camera_ttc:" in (CONF / "dataset" / f"{j.split('=')[1]}.yaml").read_text()]  # fmt: skip
     overlapping = [j for j in jobs if set(sets_camera) & set(j) and "camera_ttc=mean_ratio" in j]
     assert len(derived) == len(jobs) - len(overlapping)
     # the template, its 5 variants, and the overlapping jobs (their config and their setting)
@@ -236,13 +237,14 @@ def test_core_settings_of_a_batch(hydra_env) -> None:
 def test_fp6_grid_run_ids_unchanged(hydra_env) -> None:
     """The 168 run ids of ``fp6_grid`` on 0-18 are those of the planner this composer replaced
     (pinned: a digest of the sorted ids it gave, commit 4fb15ca; changed on purpose by issue
-    30's ``lidar.objects``, see tests/test_run_ids.py)."""
+    30's ``lidar.objects`` and issue 50's object-lidar keys and camera pair rule, see
+    tests/test_run_ids.py)."""
     loader, master_of = hydra_env
     master = master_of(["+experiment=fp6_grid"])
     composer, texts = Composer(loader, master), {}
     ids = sorted({setting_hash(composer.setting(j), texts) for j in sweep_jobs(loader, master)})
     assert len(ids) == 168
-    assert hashlib.sha256(" ".join(ids).encode()).hexdigest()[:16] == "73d4d32a09563542"
+    assert hashlib.sha256(" ".join(ids).encode()).hexdigest()[:16] == "0fc4dde03a57d8dd"
     assert composer.full_compositions == 1 + 6 + 5 + 1 + 1  # the template and its variants
 
 

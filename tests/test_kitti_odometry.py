@@ -138,13 +138,15 @@ def test_the_reference_follows_the_van_and_finds_no_lead_on_drive_0009(
 
 
 def test_the_recordings_own_settings_find_the_van_on_every_pair(seq) -> None:
-    """``dataset=kitti_odometry`` sets its lidar crop and camera pair distance (its YAML says
-    why): with drive 0052's (20 m, z ≤ −0.9 m, 100 px) the van was the lead on 9 of 40 pairs
-    and no camera pair qualified; with its own it is the lead on every pair, its lidar rear
-    is where measured, and the camera uses pairs ≥ 0.25 × the box width apart."""
+    """``dataset=kitti_odometry`` sets its lidar crop (its YAML says why) and keeps every
+    recording's camera pair rule (a fraction of the box width): with drive 0052's crop and
+    the rubric's 100 px (20 m, z ≤ −0.9 m) the van was the lead on 9 of 40 pairs and no camera
+    pair qualified; with its own crop it is the lead on every pair, its lidar rear is where
+    measured, and the camera finds pairs in its 37-46 px box."""
     cfg = composed(["dataset=kitti_odometry", "dataset.last=10"])
     assert (cfg.lidar.crop.max_x, cfg.lidar.crop.max_z) == (40.0, 0.0)
-    assert (cfg.camera_ttc.min_dist, cfg.camera_ttc.min_box_fraction) == (0.0, 0.25)
+    assert cfg.camera_ttc == composed(["dataset.last=10"]).camera_ttc  # no rule of its own
+    assert cfg.camera_ttc.min_box_fraction > 0
     rows = run_setting(settings_from_config(cfg), frame_range_from_config(cfg), StageCache(None))
     lead = rows[rows["is_lead"]].set_index("frame")
     assert lead.index.tolist() == list(range(1, 11))
@@ -152,12 +154,10 @@ def test_the_recordings_own_settings_find_the_van_on_every_pair(seq) -> None:
     assert (lead["lidar_points_curr"] >= 50).all()
     assert (lead["box_w"] < 60).all() and (lead["camera_pairs"] > 0).all()
     udacity = composed(["dataset=kitti_odometry", "dataset.last=10", "lidar.crop.max_z=-0.9",
-                        "lidar.crop.max_x=20", "camera_ttc.min_dist=100",
-                        "camera_ttc.min_box_fraction=0"])  # fmt: skip
+                        "lidar.crop.max_x=20", "+camera_pairs=rubric"])  # fmt: skip
     old = run_setting(settings_from_config(udacity), frame_range_from_config(udacity),
                       StageCache(None))  # fmt: skip
     assert not old["is_lead"].any()
     assert composed(["lidar.crop.max_x=30", "dataset=kitti_odometry"]).lidar.crop.max_x == 30
-    default = composed([])  # drive 0052's settings stay
+    default = composed([])  # drive 0052's crop stays
     assert (default.lidar.crop.max_x, default.lidar.crop.max_z) == (20.0, -0.9)
-    assert (default.camera_ttc.min_dist, default.camera_ttc.min_box_fraction) == (100.0, 0.0)
