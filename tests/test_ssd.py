@@ -281,7 +281,7 @@ def test_a_sweep_finds_the_cache_copy_in_its_workers(ssd_dir, data_dir, tmp_path
 
 
 def test_distance_bands_count_each_box_once() -> None:
-    from experiments.tools.detector_bands import band_counts  # noqa: PLC0415
+    from ttc.evaluation.ttc_bins import band_counts  # noqa: PLC0415
 
     counts = band_counts(np.array([5.0, 10.0, 15.0, 25.0, 44.9, 45.0, 60.0, np.nan]))
     assert counts == {"<10 m": 1, "10-20 m": 2, "20-30 m": 1, "30-45 m": 1, ">45 m": 2,

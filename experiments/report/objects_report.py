@@ -36,7 +36,8 @@ from ttc.evaluation.object_levels import (
     level_rankings,
 )
 from ttc.evaluation.object_reference import REFERENCE_OBJECT_COLUMNS
-from ttc.evaluation.ttc_bins import OBJECT_TTC_BINS
+from ttc.evaluation.ttc_bins import OBJECT_TTC_BINS, band_counts
+from ttc.evaluation.verdict import objects_verdict
 
 #: Settings shown in each best-of table.
 BEST = 5
@@ -70,7 +71,7 @@ def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.Da
     tau = ranking_agreement(lead.set_index("setting")["score"],
                             ranking.set_index("setting")["score"])  # fmt: skip
     levels = _levels_section(reference, judged, rankings)
-    write_text(_page(data, reference, judged, ranking, lead, tau, levels), out / "objects.md")
+    write_text(_page(data, reference, judged, rankings, lead, tau, levels), out / "objects.md")
     save_figure(plot_objects(reference, judged, ranking), out / "objects.png")
     if judged["judged"].any():
         save_figure(plot_breakdown(breakdown(judged)), out / "objects_breakdown.png")
@@ -133,13 +134,19 @@ def _page(
     data: SweepData,
     reference: pd.DataFrame,
     judged: pd.DataFrame,
-    ranking: pd.DataFrame,
+    rankings: pd.DataFrame,
     lead: pd.DataFrame,
     tau: float,
     levels: str = "",
 ) -> str:
-    """The markdown of ``objects.md`` (``levels``: its per-level part, after the pairs
-    judged per role and range)."""
+    """The markdown of ``objects.md``: the verdict (:func:`ttc.evaluation.verdict.objects_verdict`
+    of the per-level ``rankings``) first, then tracks, boxes per frame by distance band, pairs
+    judged, the rankings (``levels``: the per-level part, after the pairs judged per role and
+    range)."""
+    ranking = rankings[rankings["difficulty"] == "all"].drop(columns="difficulty")
+    n_frames = max(int(reference["frame"].nunique()), 1)
+    bands = pd.DataFrame([{k: v / n_frames for k, v in
+                           band_counts(reference["distance_m"].to_numpy(dtype=float)).items()}])  # fmt: skip
     tracks = reference.groupby("track_id")["role"].first().value_counts()
     one = judged.drop_duplicates(["frame", "curr_box", "ref_track_id"])
     counts = pd.crosstab(one["role"], one["ttc_bin"].where(one["judged"], "not judged"))
@@ -147,6 +154,8 @@ def _page(
     counts = counts[order]
     lines = [
         provenance_markdown(data, "Every object: TTC judged per tracked vehicle"),
+        objects_verdict(rankings),
+        "",
         "Every detector box gets its own lidar points (the best-supported depth group of its "
         "frustum, split where the depth jumps by more than a gap that grows with range), boxes "
         "are linked frame to frame (IoU), and each track's nearest-face distances are smoothed "
@@ -157,6 +166,13 @@ def _page(
         f"## Tracks by role ({reference['track_id'].nunique()} tracks)",
         "",
         markdown_table(tracks.rename("tracks").rename_axis("role").reset_index()),
+        "",
+        f"## Boxes per frame by lidar distance ({n_frames} frames with boxes)",
+        "",
+        "The detector's boxes per frame by the forward distance of their object's nearest face "
+        "(`no lidar`: too few points of their own).",
+        "",
+        markdown_table(bands),
         "",
         "## Object pairs per role and reference-TTC range (distinct boxes)",
         "",

@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 import cv2
-import numpy as np
 import pandas as pd
 from hydra import compose, initialize_config_dir
 
@@ -27,6 +26,7 @@ from experiments.config import prepared_frame_range, register_configs, settings_
 from experiments.data.first_run import ensure_setting_models
 from experiments.reference_store import recording_boxes
 from ttc.engine.cache import StageCache
+from ttc.evaluation.ttc_bins import band_counts
 from ttc.features.objects import detect_objects
 from ttc.io.frames import frame_files, read_image
 
@@ -44,19 +44,9 @@ DETECTORS = {
     "ssd_mobilenet_v2, 3 tiles": ["objects=ssd_mobilenet_v2", "objects.tiles=3"],
     "ssd_mobilenet_v2, 4 tiles": ["objects=ssd_mobilenet_v2", "objects.tiles=4"],
 }
+
+
 #: Upper edges of the distance bands (metres).
-BANDS = (10.0, 20.0, 30.0, 45.0, np.inf)
-BAND_NAMES = ("<10 m", "10-20 m", "20-30 m", "30-45 m", ">45 m")
-
-
-def band_counts(distance_m: np.ndarray) -> dict[str, int]:
-    """Boxes per distance band, and those without a lidar distance (``no lidar``)."""
-    known = distance_m[np.isfinite(distance_m)]
-    index = np.searchsorted(BANDS, known, side="right")
-    counts = {name: int((index == i).sum()) for i, name in enumerate(BAND_NAMES)}
-    return counts | {"no lidar": int(np.isnan(distance_m).sum())}
-
-
 def measure(recording: list[str], detector: list[str]) -> dict[str, float]:
     """Boxes per frame by band and ms per frame of one detector setting on one recording."""
     with initialize_config_dir(config_dir=str(paths.CONF_DIR), version_base="1.3"):

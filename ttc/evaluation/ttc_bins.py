@@ -32,6 +32,20 @@ OBJECT_TTC_BIN_EDGES_S: tuple[float, ...] = (0.0, 3.0, 6.0, 12.0, 24.0, np.inf)
 OBJECT_TTC_BINS: tuple[str, ...] = ("<3s", "3-6s", "6-12s", "12-24s", ">24s")
 
 
+#: Upper edges (m) of the lidar distance bands boxes are counted in, and their names.
+DISTANCE_BANDS: tuple[float, ...] = (10.0, 20.0, 30.0, 45.0, np.inf)
+DISTANCE_BAND_NAMES: tuple[str, ...] = ("<10 m", "10-20 m", "20-30 m", "30-45 m", ">45 m")
+
+
+def band_counts(distance_m: np.ndarray) -> dict[str, int]:
+    """Boxes per lidar distance band (:data:`DISTANCE_BAND_NAMES`; ``distance_m`` in metres,
+    one per box) and those without a lidar distance (NaN: ``no lidar``)."""
+    distance_m = np.asarray(distance_m, dtype=float)
+    index = np.searchsorted(DISTANCE_BANDS, distance_m[np.isfinite(distance_m)], side="right")
+    counts = {name: int((index == i).sum()) for i, name in enumerate(DISTANCE_BAND_NAMES)}
+    return counts | {"no lidar": int(np.isnan(distance_m).sum())}
+
+
 def ttc_bin(
     ttc_ref_s: np.ndarray | pd.Series,
     edges: tuple[float, ...] = TTC_BIN_EDGES_S,
