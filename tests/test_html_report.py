@@ -156,7 +156,8 @@ def test_a_sweep_of_thousands_gives_pages_to_its_best_and_worst_only() -> None:
     rank = [10, 1, 2, 3, 4, 5, 6, 7, 8, 9]
     ranking = pd.DataFrame({"dataset": "kitti_0_18", "setting": [f"s{i}" for i in range(10)],
                             "rank": rank, "rank_lo": rank, "rank_hi": [r + 1 for r in rank],
-                            "way_off_frames": 1, "block_length": 2, "n_uncertain": 0})  # fmt: skip
+                            "way_off_frames": 1, "block_length": 2, "n_uncertain": 0,
+                            "n_judged": 18})  # fmt: skip
     assert paged_settings(ranking, best=20, worst=5) == {("kitti_0_18", f"s{i}") for i in range(10)}
     paged = paged_settings(ranking, best=3, worst=2)
     assert paged == {("kitti_0_18", s) for s in ("s1", "s2", "s3", "s9", "s0")}
