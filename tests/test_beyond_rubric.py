@@ -101,10 +101,13 @@ def cache(tmp_path_factory) -> StageCache:
 
 
 def test_default_ttcs_equal_the_committed_rubric_report(kitti_dir: Path, cache) -> None:
-    """FAST + BRIEF + BF + kNN on frames 0–18 gives the committed report's camera TTCs."""
+    """FAST + BRIEF + BF + kNN on frames 0–18 under the configured camera pair rule (the box-
+    relative default of conf/camera_ttc) gives the committed report's camera TTCs."""
     committed = pd.read_csv(RUBRIC_CSV).query("setting == 'fast/brief/bf/knn'")
     assert len(committed) == 18
-    s = Settings(detector=FastParams(), descriptor=DESCRIPTORS["brief"]())
+    pairs = settings_from_config(composed([])).camera_ttc
+    assert pairs.min_dist == 0 and pairs.min_box_fraction == 0.15
+    s = Settings(detector=FastParams(), descriptor=DESCRIPTORS["brief"](), camera_ttc=pairs)
     rows = run_setting(s, FrameRange(kitti_dir, 0, 18), cache)
     lead = rows[rows["is_lead"]].set_index("frame").loc[committed["frame"]]
     np.testing.assert_allclose(lead["camera_ratio"], committed["camera_ratio"], rtol=1e-5)
