@@ -14,6 +14,9 @@ import pandas as pd
 from experiments.report.html.page import esc, inline, interactive_table, markdown_html, page
 from ttc.evaluation.verdict import has_lead, no_lead_sentence, objects_verdict
 
+#: How :func:`ttc.evaluation.verdict.objects_verdict`'s sentence starts (``objects.md``'s first
+#: paragraph, which ``objects.html`` shows above its provenance instead).
+VERDICT_START = "**Every object"
 #: The every-object figures of the markdown report shown on ``objects.html``.
 OBJECT_FIGURES = ("objects.png", "objects_breakdown.png")
 
@@ -70,8 +73,9 @@ def objects_page(
 
 def _without_provenance(text: str) -> str:
     """``objects.md`` without its provenance table and folded config (the page has its own
-    provenance block): everything before the first paragraph that is not part of them."""
-    lines = text.splitlines()
+    provenance block) and its verdict line (the page leads with it): everything before the
+    first paragraph that is not part of them."""
+    lines = [line for line in text.splitlines() if not line.startswith(VERDICT_START)]
     i = 0
     while i < len(lines) and (
         not lines[i].strip() or lines[i].startswith("|") or lines[i].startswith("<details>")
