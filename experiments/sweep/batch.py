@@ -86,8 +86,10 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
     rows = pd.DataFrame()
     try:
         frames = prepared_frame_range(cfg)
-        for i in valid:  # each detector's files found (a copy the sweep downloaded)
-            setting_models(settings[i].objects)
+        # each detector's files found (a copy the sweep downloaded), once per distinct entry:
+        # settings made together share one objects entry per distinct value (core_settings)
+        for objects in {id(settings[i].objects): settings[i].objects for i in valid}.values():
+            setting_models(objects)
         inputs = store.input_identities(input_files(settings[valid[0]], frames)) if valid else ""
         cache = StageCache(cfg.cache.dir, enabled=cfg.cache.enabled)
         rows, failed = run_settings([settings[i] for i in valid], frames, cache)
