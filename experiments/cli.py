@@ -30,9 +30,11 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     "sweep": Subcommand(
         "experiments.run", "run a sweep: `run -m` with the same overrides", ("-m",)
     ),
-    "collect": Subcommand("experiments.collect", "print a sweep's summary (counts, best settings)"),
+    "collect": Subcommand(
+        "experiments.summary.collect", "print a sweep's summary (counts, best settings)"
+    ),
     "compact": Subcommand(
-        "experiments.tools.compact", "merge a sweep's small rows files into larger ones"
+        "experiments.tools.compact_command", "merge a sweep's small rows files into larger ones"
     ),
     "report": Subcommand("experiments.report", "write the FP.5 / FP.6 reports of sweeps"),
     "judge": Subcommand(
@@ -42,7 +44,7 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     "show": Subcommand("experiments.tools.show", "pictures of one frame pair of one setting"),
     "download": Subcommand("experiments.data.download", "download (or complete) the KITTI frames"),
     "benchmark": Subcommand("experiments.tools.benchmark", "time the main sweep (cold and warm)"),
-    "schema": Subcommand("experiments.tools.schema", "print the columns of the rows dataset"),
+    "schema": Subcommand("experiments.store.schema", "print the columns of the rows dataset"),
     "export": Subcommand(
         "experiments.tools.export", "one setting of a sweep as an MCAP file for Foxglove"
     ),

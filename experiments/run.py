@@ -15,9 +15,9 @@ The sweeper launches no job for a complete run (:func:`store.incomplete_reason`)
 checks again (resume); any other is recomputed with a line saying why. Invalid
 detector × descriptor pairs are recorded as ``skipped``, any other exception as ``failed``:
 neither stops a sweep. A single run whose setting failed exits 1; a sweep exits 1 at its end
-when a setting failed (:mod:`experiments.callbacks`).
+when a setting failed (:mod:`experiments.sweep.callbacks`).
 
-This module is the Hydra entry; the computation (:mod:`experiments.job`: OpenCV, pandas, the
+This module is the Hydra entry; the computation (:mod:`experiments.sweep.job`: OpenCV, pandas, the
 engine, ≈ 0.5 s of imports) is imported when a job runs, so a sweep's main process, which
 validates and plans, starts its workers that much sooner; they import it while it plans.
 """
@@ -39,9 +39,14 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from experiments import paths
-from experiments.config import config_problems, missing_data_message, register_configs, sequence_dir
+from experiments.configs.structured import (
+    config_problems,
+    missing_data_message,
+    register_configs,
+    sequence_dir,
+)
 from experiments.data.first_run import ensure_data
+from experiments.host import paths
 from experiments.sweep.mode_composition import compose_once
 
 register_configs()
@@ -63,12 +68,12 @@ def check_data(cfg: DictConfig) -> None:
 
 def warm_up(master: DictConfig) -> None:
     """What a sweep's worker does while the main process plans (the ttc launcher calls the
-    task module's ``warm_up``): import the computation (:mod:`experiments.job`) and fill the
+    task module's ``warm_up``): import the computation (:mod:`experiments.sweep.job`) and fill the
     stage cache with the entries every setting reads (:func:`experiments.sweep.warm_up.warm_up`)."""
     from experiments.sweep.warm_up import warm_up as fill_cache  # noqa: PLC0415
 
     with contextlib.suppress(Exception):  # the jobs meet the same problem and record it
-        import experiments.job  # noqa: F401, PLC0415 (else the first job imports it)
+        import experiments.sweep.job  # noqa: F401, PLC0415 (else the first job imports it)
     fill_cache(master)
 
 
@@ -79,7 +84,7 @@ def main(cfg: DictConfig) -> None:
         problems = config_problems(cfg)
         if problems:
             sys.exit("invalid configuration:\n  " + "\n  ".join(problems))
-    from experiments.job import run_main  # noqa: PLC0415 (the computation's imports)
+    from experiments.sweep.job import run_main  # noqa: PLC0415 (the computation's imports)
 
     run_main(cfg, output_dir(), multirun)
 

@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
-from experiments.config import register_configs
+from experiments.configs.structured import register_configs
 from tests.conftest import PROJECT_ROOT, data_root
 
 RAW = Path("kitti_raw") / "2011_09_26"

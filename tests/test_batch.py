@@ -255,11 +255,11 @@ def _kill_holders(sweep: Path, proc: subprocess.Popen) -> list[int]:
 
 def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir) -> None:
     """The end-of-sweep summary reads only the lead rows and the columns the metrics read
-    (:func:`experiments.lead_cache.lead_rows`, kept per fragment by the sweep's summary and
+    (:func:`experiments.summary.lead_rows.lead_rows`, kept per fragment by the sweep's summary and
     read back here); its ranking is the ranking of every row."""
-    from experiments.collect import ranked_runs
-    from experiments.lead_cache import lead_rows
-    from experiments.reference_store import recording_references
+    from experiments.summary.collect import ranked_runs
+    from experiments.summary.lead_rows import lead_rows
+    from experiments.summary.references import recording_references
     from ttc.engine.cache import StageCache
 
     sweep = two_ways["tmp"] / "batched" / "grid"
@@ -276,7 +276,7 @@ def test_the_summary_ranks_its_lead_rows_as_the_whole_dataset(two_ways, data_dir
 def test_kept_run_metrics_are_taken_back_only_while_what_they_read_is_unchanged(
     two_ways, data_dir, tmp_path, monkeypatch
 ) -> None:
-    """The summary's run metrics kept per fragment (:mod:`experiments.ranking_cache`) are
+    """The summary's run metrics kept per fragment (:mod:`experiments.summary.run_metrics`) are
     :func:`ttc.evaluation.run_metrics` of every lead row each time: read back with no run
     judged again; a new fragment whose stages all came from the cache is judged alone; one
     whose runs computed the keypoints of ``fast`` again (1 s a frame) moves the median computing
@@ -284,9 +284,9 @@ def test_kept_run_metrics_are_taken_back_only_while_what_they_read_is_unchanged(
     judged again, the others taken as kept; against another reference, every fragment."""
     import shutil
 
-    from experiments.lead_cache import LeadRows
-    from experiments.ranking_cache import kept_run_metrics
-    from experiments.reference_store import recording_references
+    from experiments.summary.lead_rows import LeadRows
+    from experiments.summary.references import recording_references
+    from experiments.summary.run_metrics import kept_run_metrics
     from ttc import evaluation as ev
     from ttc.engine.cache import StageCache
 

@@ -16,7 +16,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from experiments import store
-from experiments.config import (
+from experiments.configs.structured import (
     axis_values,
     register_configs,
     run_id,

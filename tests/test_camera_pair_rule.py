@@ -15,7 +15,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
-from experiments.config import (
+from experiments.configs.structured import (
     frame_range_from_config,
     register_configs,
     run_id,

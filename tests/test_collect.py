@@ -7,7 +7,7 @@ import importlib
 import pandas as pd
 import pytest
 
-from experiments.collect import ranked_sensor
+from experiments.summary.collect import ranked_sensor
 
 
 def runs_varying(**axes: list[str]) -> pd.DataFrame:
@@ -42,7 +42,8 @@ def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
     row, blanked."""
     import numpy as np
 
-    from experiments import lead_cache, store
+    from experiments import store
+    from experiments.summary import lead_rows
     from ttc import evaluation as ev
 
     rows = pd.DataFrame(
@@ -57,11 +58,11 @@ def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
     for run_id, own in rows.groupby("run_id"):
         store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 4}, own)
     whole = ev.lead_rows(rows.drop(columns="git_commit"))
-    computed = lead_cache.lead_rows(tmp_path)
-    (kept_file,) = (tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet")  # both fragments
+    computed = lead_rows.lead_rows(tmp_path)
+    (kept_file,) = (tmp_path / lead_rows.CACHE_DIR).glob("lead-*.parquet")  # both fragments
     written = kept_file.stat().st_mtime_ns
-    kept = lead_cache.lead_rows(tmp_path)
-    assert list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet")) == [kept_file]
+    kept = lead_rows.lead_rows(tmp_path)
+    assert list((tmp_path / lead_rows.CACHE_DIR).glob("lead-*.parquet")) == [kept_file]
     assert kept_file.stat().st_mtime_ns == written  # read, not written again
     for got in (computed, kept):
         got = got.sort_values(["run_id", "frame"], ignore_index=True)
@@ -72,9 +73,9 @@ def test_lead_rows_kept_per_fragment_are_the_whole_sweeps(tmp_path) -> None:
     # a run recomputed into another fragment: the old fragment's kept rows are not used
     redo = rows[rows["run_id"] == "a"].assign(ttc_camera=[9.0, 4.0, 8.0, 7.0])
     store.save_batch(tmp_path, "batch-x", [{"run_id": "a", "status": "ok", "n_rows": 4}], redo)
-    again = lead_cache.lead_rows(tmp_path)
+    again = lead_rows.lead_rows(tmp_path)
     np.testing.assert_array_equal(again["ttc_camera"], [4.0, np.nan, 2.0, 3.0])
-    assert len(list((tmp_path / lead_cache.CACHE_DIR).glob("lead-*.parquet"))) == 2
+    assert len(list((tmp_path / lead_rows.CACHE_DIR).glob("lead-*.parquet"))) == 2
 
 
 def spec_lead_rows(frames: pd.DataFrame) -> pd.DataFrame:
@@ -123,11 +124,11 @@ def random_rows(seed: int, unknown_flags: bool) -> pd.DataFrame:
 def test_lead_rows_keep_each_pairs_first_lead_row(seed: int, unknown_flags: bool) -> None:
     """:func:`ttc.evaluation.lead_rows` (positions from three columns, then one take) is the
     rule's first definition row for row, blanking included; so is the Arrow path of the
-    summary's kept lead rows (:func:`experiments.lead_cache.lead_table`) as pandas, with
+    summary's kept lead rows (:func:`experiments.summary.lead_rows.lead_table`) as pandas, with
     nullable integer columns and NaN beside null estimates."""
     import pyarrow as pa
 
-    from experiments.lead_cache import lead_table
+    from experiments.summary.lead_rows import lead_table
     from ttc import evaluation as ev
 
     rows = random_rows(seed, unknown_flags)
@@ -147,31 +148,32 @@ def test_kept_lead_rows_unreadable_duplicated_or_many_files(tmp_path, monkeypatc
     """A kept file that cannot be read is left out (its fragments computed again); a
     fragment kept in two files is taken once; past ``MAX_KEPT_FILES`` files the rows used
     are kept as one file and the others removed."""
-    from experiments import kept_tables, lead_cache, store
+    from experiments import store
+    from experiments.summary import kept_tables, lead_rows
 
     def add_run(run_id: str) -> None:
         rows = pd.DataFrame({"run_id": run_id, "frame": [1, 2], "is_lead": True,
                              "ttc_camera": [1.0, 2.0]})  # fmt: skip
         store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 2}, rows)
 
-    folder = tmp_path / lead_cache.CACHE_DIR
+    folder = tmp_path / lead_rows.CACHE_DIR
     add_run("r0")
-    first = lead_cache.lead_rows(tmp_path)
+    first = lead_rows.lead_rows(tmp_path)
     (kept,) = folder.glob("lead-*.parquet")
     copy = folder / "lead-copy.parquet"  # the same fragment in a second file
     copy.write_bytes(kept.read_bytes())
-    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), first)
+    pd.testing.assert_frame_equal(lead_rows.lead_rows(tmp_path), first)
     kept.write_bytes(b"PAR1 not a parquet file")
     copy.unlink()
-    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), first)  # computed again
+    pd.testing.assert_frame_equal(lead_rows.lead_rows(tmp_path), first)  # computed again
     monkeypatch.setattr(kept_tables, "MAX_KEPT_FILES", 3)
     for i in range(1, 4):  # one kept file per summary that computed something
         add_run(f"r{i}")
-        rows = lead_cache.lead_rows(tmp_path)
+        rows = lead_rows.lead_rows(tmp_path)
     assert sorted(rows["run_id"].unique()) == ["r0", "r1", "r2", "r3"]
     assert len(rows) == 8
     (whole,) = folder.glob("lead-*.parquet")  # 4 files -> 1
-    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), rows)
+    pd.testing.assert_frame_equal(lead_rows.lead_rows(tmp_path), rows)
     assert list(folder.glob("lead-*.parquet")) == [whole]
 
 
@@ -217,8 +219,9 @@ def test_fragment_schemas_are_kept_and_a_new_type_still_unifies(tmp_path, monkey
     file is read again from the fragments."""
     from pathlib import Path
 
-    from experiments import lead_cache, store
+    from experiments import store
     from experiments.store import dataset
+    from experiments.summary import lead_rows
 
     reads = []
     real = dataset.pq.read_schema
@@ -235,25 +238,25 @@ def test_fragment_schemas_are_kept_and_a_new_type_still_unifies(tmp_path, monkey
         store.save_run(tmp_path, {"run_id": run_id, "status": "ok", "n_rows": 2}, rows)
 
     add_run("r0", [1, 2])  # int64
-    lead_cache.lead_rows(tmp_path)
+    lead_rows.lead_rows(tmp_path)
     assert len(reads) == 1
     add_run("r1", [1.5, 2.5])  # float64: the unified type
-    rows = lead_cache.lead_rows(tmp_path)
+    rows = lead_rows.lead_rows(tmp_path)
     assert len(reads) == 2  # r1's only
     assert rows["ttc_camera"].tolist() == [1.0, 2.0, 1.5, 2.5]
-    (tmp_path / lead_cache.CACHE_DIR / lead_cache.SCHEMAS_FILE).write_bytes(b"not a pickle")
-    pd.testing.assert_frame_equal(lead_cache.lead_rows(tmp_path), rows)
+    (tmp_path / lead_rows.CACHE_DIR / lead_rows.SCHEMAS_FILE).write_bytes(b"not a pickle")
+    pd.testing.assert_frame_equal(lead_rows.lead_rows(tmp_path), rows)
     assert len(reads) == 4
 
 
 def test_kept_lead_rows_come_back_in_the_datasets_fragment_order() -> None:
-    """:func:`experiments.kept_tables.in_fragment_order` (slices of the runs of equal keys) is
+    """:func:`experiments.summary.kept_tables.in_fragment_order` (slices of the runs of equal keys) is
     the stable sort of the rows by their key's position, also where a key's rows are split
     into several runs, on random tables."""
     import numpy as np
     import pyarrow as pa
 
-    from experiments import kept_tables
+    from experiments.summary import kept_tables
 
     rng = np.random.default_rng(7)
     for _ in range(100):
@@ -279,11 +282,12 @@ def _summed(counts: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
 
 
 def test_kept_counts_are_every_lead_rows_counts(tmp_path, monkeypatch) -> None:
-    """The summary's computing-time counts kept (:func:`experiments.ranking_cache.lead_counts`)
+    """The summary's computing-time counts kept (:func:`experiments.summary.run_metrics.lead_counts`)
     sum up as the counts of every lead row: a new fragment's rows alone counted; a run
     recomputed into another fragment, or a damaged file, counted again from every row."""
-    from experiments import ranking_cache, store
-    from experiments.lead_cache import LeadRows
+    from experiments import store
+    from experiments.summary import run_metrics
+    from experiments.summary.lead_rows import LeadRows
     from ttc.evaluation import stage_times
 
     def run(run_id: str, detector: str, ms: list[float], cached: list[bool]) -> pd.DataFrame:
@@ -303,9 +307,9 @@ def test_kept_counts_are_every_lead_rows_counts(tmp_path, monkeypatch) -> None:
 
     def check() -> None:
         lead = LeadRows(tmp_path)
-        whole = real(lead.frame(columns=ranking_cache._count_columns(lead)))
+        whole = real(lead.frame(columns=run_metrics._count_columns(lead)))
         counted.clear()
-        got = ranking_cache.lead_counts(lead)
+        got = run_metrics.lead_counts(lead)
         for name, table in _summed(whole).items():
             pd.testing.assert_frame_equal(_summed(got)[name], table)
 
@@ -321,6 +325,6 @@ def test_kept_counts_are_every_lead_rows_counts(tmp_path, monkeypatch) -> None:
     save("batch-c", run("a", "fast", [1.0, 1.0, 1.0], [False] * 3))  # a recomputed
     check()
     assert counted == [9]  # every live lead row: a's old rows no longer counted
-    (tmp_path / ".summary" / ranking_cache.COUNTS_FILE).write_bytes(b"damaged")
+    (tmp_path / ".summary" / run_metrics.COUNTS_FILE).write_bytes(b"damaged")
     check()
     assert counted == [9]

@@ -16,7 +16,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
 from omegaconf import OmegaConf
 
-from experiments.config import (
+from experiments.configs.structured import (
     register_configs,
     run_id,
     setting_config,

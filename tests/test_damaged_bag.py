@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 from mcap.reader import make_reader
 
-from experiments.config import frame_range_from_config, settings_from_config
-from experiments.records import lost_frames
-from experiments.reference_store import recording_boxes, sequence_reference
+from experiments.configs.structured import frame_range_from_config, settings_from_config
+from experiments.store.records import lost_frames
+from experiments.summary.references import recording_boxes, sequence_reference
 from tests.ros2_bags import IMAGE, LIDAR, bag_config, make_bag
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting

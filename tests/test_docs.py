@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.tools.schema import markdown_table
+from experiments.store.schema import markdown_table
 from tests.conftest import PROJECT_ROOT
 from ttc.settings import AXES
 
@@ -20,7 +20,7 @@ DOCS = {p.name: p.read_text() for p in sorted((PROJECT_ROOT / "docs").glob("*.md
 
 def test_schema_table_is_current() -> None:
     assert markdown_table() in DOCS["results.md"], (
-        "regenerate with: python -m experiments.tools.schema"
+        "regenerate with: python -m experiments.store.schema"
     )
 
 

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from experiments import store
-from experiments.report.cli import build_report
+from experiments.report.report_command import build_report
 from tests.test_kitti_raw import make_drive
 from tests.test_sweep import hydra_run
 from ttc import evaluation as ev
@@ -89,10 +89,10 @@ def test_the_sweep_summary_and_tracking_judge_each_run_on_its_own_drive(
     """The end-of-sweep summary ranks a sweep over two drives pooled over both (it fell back
     to the interim camera-vs-lidar score), and the MLflow metrics judge each run against its
     own drive's reference (they failed: one reference for two recordings)."""
-    from experiments.collect import summarise_sweep
-    from experiments.recordings import recording_of
-    from experiments.reference_store import sequence_reference
-    from experiments.tracking import _metrics_of
+    from experiments.summary.collect import summarise_sweep
+    from experiments.summary.recordings import recording_of
+    from experiments.summary.references import sequence_reference
+    from experiments.sweep.tracking import _metrics_of
     from ttc.engine.cache import StageCache
 
     sweep_dir, root = two_drive_sweep
@@ -132,7 +132,7 @@ def test_without_a_reference_the_summary_ranks_nothing_and_says_why(
 ) -> None:
     """The summary ranks by ttc.evaluation's rule only: a data root without the recordings
     (no reference can be built) gives no ranking and the reason, not a second score."""
-    from experiments.collect import summarise_sweep
+    from experiments.summary.collect import summarise_sweep
 
     sweep_dir, _ = two_drive_sweep
     table = summarise_sweep(sweep_dir, data_dir=tmp_path / "empty", cache_dir=tmp_path / "c")
@@ -181,7 +181,7 @@ def test_a_setting_spans_recordings_where_an_options_value_is_the_recordings() -
     setting on both recordings; a value swept within one choice stays the setting's."""
     import json
 
-    from experiments.recordings import setting_of
+    from experiments.summary.recordings import setting_of
 
     def config(seq: str, camera: str, min_dist: float, z: float) -> str:
         return json.dumps({"dataset": {"sequence": seq},
@@ -200,12 +200,13 @@ def test_a_setting_spans_recordings_where_an_options_value_is_the_recordings() -
 
 
 def test_configs_flattened_once_per_process_give_each_call_its_own_table() -> None:
-    """:func:`~experiments.flat_configs.config_table` keeps every config it flattened (the
+    """:func:`~experiments.store.flat_configs.config_table` keeps every config it flattened (the
     report asks for each recording's runs, then for all of them): a later call on other,
     overlapping or missing configs gets exactly its own keys and leaves, by its own index."""
     import json
 
-    from experiments import flat_configs, recordings
+    from experiments.store import flat_configs
+    from experiments.summary import recordings
 
     one = json.dumps({"dataset": {"sequence": "a"}, "k": {"z": 2.0, "tags": [1, 2]}})
     two = json.dumps({"dataset": {"sequence": "b"}, "k": {"z": 3}, "extra": {}})
@@ -234,7 +235,7 @@ def test_configs_flattened_once_per_process_give_each_call_its_own_table() -> No
 
 
 def test_a_configs_recording_is_read_as_json_reads_it() -> None:
-    """:func:`experiments.flat_configs.entry_leaves` (the summary reads each run's
+    """:func:`experiments.store.flat_configs.entry_leaves` (the summary reads each run's
     ``dataset`` entry without parsing the whole config) gives the leaves
     :func:`json.loads` gives, each text read twice (the second cut as the first's keys say):
     stored configs one after another, other spacing, a nested key of the same name, one
@@ -242,7 +243,7 @@ def test_a_configs_recording_is_read_as_json_reads_it() -> None:
     missing key gives no leaf."""
     import json
 
-    from experiments.flat_configs import _flat, entry_leaves
+    from experiments.store.flat_configs import _flat, entry_leaves
 
     def expected(text: str) -> dict[str, str]:
         flat = _flat(json.loads(text))

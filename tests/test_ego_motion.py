@@ -16,7 +16,11 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from experiments import store
-from experiments.config import config_problems, frame_range_from_config, register_configs
+from experiments.configs.structured import (
+    config_problems,
+    frame_range_from_config,
+    register_configs,
+)
 from tests.conftest import PROJECT_ROOT
 from ttc.engine.stages import input_files
 from ttc.features.descriptors import DESCRIPTORS

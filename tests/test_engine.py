@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.config import settings_from_config
+from experiments.configs.structured import settings_from_config
 from tests.conftest import PROJECT_ROOT
 from tests.test_beyond_rubric import composed
 from ttc.engine.cache import StageCache
@@ -67,7 +67,7 @@ def _three_shrink_runs(data: list[str]) -> tuple[FrameRange, list]:
     ``zscore`` keypoint filter (the same lidar work) and with ``lidar_shrink=0.2`` (its own)."""
     import dataclasses
 
-    from experiments.config import prepared_frame_range
+    from experiments.configs.structured import prepared_frame_range
 
     base = settings_from_config(composed(data))
     zscore = dataclasses.replace(base.keypoint_filter, name="zscore")
@@ -221,7 +221,7 @@ def test_a_box_pairs_lidar_ttc_is_kept_for_the_other_camera_stages_of_the_proces
     """Drive 0009 frames 0-4: FP.2 of a box pair reads the lidar only, so runs on other
     detectors (other groups, other jobs) take it from the process's memory; another lidar
     estimator computes its own; rows are those of a cache that keeps nothing in memory."""
-    from experiments.config import prepared_frame_range
+    from experiments.configs.structured import prepared_frame_range
 
     calls = _counted(monkeypatch, "lidar_ttc")
     data = ["dataset=kitti_raw_0009", "dataset.last=4", "descriptor=brief"]

@@ -11,9 +11,13 @@ import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 
-from experiments.config import frame_range_from_config, register_configs, settings_from_config
-from experiments.reference_store import recording_boxes
+from experiments.configs.structured import (
+    frame_range_from_config,
+    register_configs,
+    settings_from_config,
+)
 from experiments.report.objects_report import reference_objects_table
+from experiments.summary.references import recording_boxes
 from tests.conftest import PROJECT_ROOT
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting

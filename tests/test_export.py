@@ -19,8 +19,8 @@ from mcap_protobuf.decoder import DecoderFactory
 from scipy.spatial.transform import Rotation
 
 from experiments import store
-from experiments.reference_store import object_references
 from experiments.report.load import make_context
+from experiments.summary.references import object_references
 from experiments.tools.export import TOPICS, select_run
 from tests.conftest import data_root
 from tests.test_report import make_sweep, run_module, shared_root

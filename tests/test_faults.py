@@ -194,7 +194,7 @@ def test_4_corrupt_rows_file_is_named_and_recomputed(kitti_dir, tmp_path, shared
     runs = store.load_runs(sweep)
     bad = sweep / store.RUNS_DIR / f"{runs['run_id'][0]}.parquet"
     bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 2])
-    res = run_cli([str(sweep)], root, tmp_path, module="experiments.collect")
+    res = run_cli([str(sweep)], root, tmp_path, module="experiments.summary.collect")
     assert res.returncode == 1
     assert f"{bad}: rows file corrupt" in res.stderr and "Traceback" not in res.stderr
     with pytest.raises(store.StoreError, match="rows file corrupt"):

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments import provenance
+from experiments.host import provenance
 from experiments.sweep import finished
 from tests.conftest import PROJECT_ROOT
 

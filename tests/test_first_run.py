@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from experiments import paths
 from experiments.data import first_run
+from experiments.host import paths
 from tests.conftest import PROJECT_ROOT
 from tests.test_download import server  # noqa: F401  (the local HTTP server fixture)
 

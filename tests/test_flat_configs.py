@@ -1,4 +1,4 @@
-"""A report keeps a sweep's flattened run configs (experiments.flat_configs.flatten_kept):
+"""A report keeps a sweep's flattened run configs (experiments.store.flat_configs.flatten_kept):
 the next report reads them back instead of parsing them, the same table; a damaged file or
 one made by other flattening code is not used; a new config rewrites the file."""
 
@@ -12,8 +12,8 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from experiments import flat_configs
-from experiments.flat_configs import KEPT_FILE, config_table, flatten_kept
+from experiments.store import flat_configs
+from experiments.store.flat_configs import KEPT_FILE, config_table, flatten_kept
 
 
 def _configs(n: int) -> pd.Series:

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.report.cli import build_report
+from experiments.report.report_command import build_report
 from tests.browser_cdp import Browser, chromium_path
 from tests.test_sweep import hydra_run
 from ttc.evaluation import OUTLIER_REL
@@ -141,7 +141,7 @@ def test_the_fp7_page_in_headless_chromium(fusion_report, tmp_path) -> None:
 @pytest.mark.slow
 def test_the_sweep_summary_adds_the_fused_ranking(fusion_report) -> None:
     """The sweep varies a camera axis besides the lidar estimator and the fusion: its
-    summary ranks on the camera (:func:`experiments.collect.ranked_sensor`), then lists the
+    summary ranks on the camera (:func:`experiments.summary.collect.ranked_sensor`), then lists the
     fused settings ranked on the fused TTC, in the order of the report's FP.7 table."""
     out, _ = fusion_report
     printed = (out / "summary.txt").read_text()

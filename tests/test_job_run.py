@@ -17,7 +17,7 @@ from hydra.core.utils import JobStatus, run_job
 from hydra.types import HydraContext
 from omegaconf import OmegaConf, open_dict
 
-from experiments.config import register_configs
+from experiments.configs.structured import register_configs
 from experiments.sweep.compose import Composer
 from experiments.sweep.job_run import run_sweep_job
 from tests.conftest import PROJECT_ROOT

@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from experiments.judge import cli
+from experiments.judge import judge_command
 from experiments.judge.harness import committed_side
 from experiments.judge.judging import judge, rank_together, read_inputs
 from experiments.judge.layouts import read_long
@@ -230,9 +230,9 @@ def test_bad_input_is_one_message_and_status_2(case, tmp_path: Path, capsys) -> 
     path = tmp_path / "numbers.csv"
     path.write_bytes(content if isinstance(content, bytes) else content.encode())
     with pytest.raises(SystemExit) as exit_:
-        cli.main([str(path), "dataset=kitti_0_18", "--out", str(tmp_path / "out")])
+        judge_command.main([str(path), "dataset=kitti_0_18", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
-    assert exit_.value.code == cli.BAD_INPUT
+    assert exit_.value.code == judge_command.BAD_INPUT
     assert err.startswith(f"ttc-bench judge: {path}") and message in err
     assert err.count("\n") == 1 and not (tmp_path / "out").exists()
 
@@ -271,7 +271,7 @@ def test_minus_inf_is_invalid_unless_read_as_ratio_one(tmp_path: Path, side) -> 
 
 def test_with_a_folder_that_is_no_sweep_is_one_message(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exit_:
-        cli.main([str(CEDRIC), "--with", str(tmp_path), "--out", str(tmp_path / "out")])
+        judge_command.main([str(CEDRIC), "--with", str(tmp_path), "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
-    assert exit_.value.code == cli.BAD_INPUT
+    assert exit_.value.code == judge_command.BAD_INPUT
     assert err == f"ttc-bench judge: {tmp_path}: no runs/ folder: not a sweep folder\n"

@@ -16,14 +16,14 @@ import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 
-from experiments.config import (
+from experiments.configs.structured import (
     config_problems,
     frame_range_from_config,
     register_configs,
     run_id,
     settings_from_config,
 )
-from experiments.job import no_lead_line
+from experiments.sweep.job import no_lead_line
 from tests.conftest import PROJECT_ROOT
 from ttc import reasons
 from ttc.engine.cache import StageCache

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from experiments.config import (
+from experiments.configs.structured import (
     config_problems,
     frame_range_from_config,
     register_configs,
@@ -113,7 +113,7 @@ def test_calibration_errors_name_the_file_and_key(seq, tmp_path, edit, problem) 
 def test_the_reference_covers_every_frame_of_an_odometry_sequence(seq, tmp_path) -> None:
     """The reference (summary, report) finds the frames of the odometry layout (it counted
     files under velodyne_points/data only and raised)."""
-    from experiments.reference_store import sequence_reference
+    from experiments.summary.references import sequence_reference
 
     reference = sequence_reference(seq, StageCache(tmp_path))
     assert reference["frame"].tolist() == list(range(41))
@@ -125,7 +125,7 @@ def test_the_reference_follows_the_van_and_finds_no_lead_on_drive_0009(
 ) -> None:
     """The reference's crop reaches the van 22 m ahead (the Udacity 20 m found no lead on 40
     of 41 frames) and still finds nothing ahead on drive 0009."""
-    from experiments.reference_store import sequence_reference
+    from experiments.summary.references import sequence_reference
 
     reference = sequence_reference(seq, StageCache(tmp_path)).set_index("frame")
     assert (reference["lead"] == "ok").sum() >= 40

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 
-from experiments.config import (
+from experiments.configs.structured import (
     config_problems,
     frame_range_from_config,
     register_configs,

@@ -20,7 +20,7 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
-from experiments.config import register_configs
+from experiments.configs.structured import register_configs
 from experiments.store import load_runs
 from experiments.sweep.compose import Composer, variant_jobs
 from experiments.sweep.sweeper import group_combination_jobs, meanwhile, validation_jobs

@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.config import frame_range_from_config, settings_from_config
-from experiments.reference_store import sequence_reference
+from experiments.configs.structured import frame_range_from_config, settings_from_config
+from experiments.summary.references import sequence_reference
 from tests.test_kitti_raw import composed, make_drive
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache

@@ -13,7 +13,7 @@ from hydra.errors import ConfigCompositionException
 from hydra.types import RunMode
 from omegaconf import OmegaConf
 
-from experiments.config import register_configs
+from experiments.configs.structured import register_configs
 from experiments.sweep.mode_composition import compose_once
 from tests.conftest import PROJECT_ROOT
 

@@ -10,9 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import paths
-from experiments.config import config_problems, frame_range_from_config, settings_from_config
+from experiments.configs.structured import (
+    config_problems,
+    frame_range_from_config,
+    settings_from_config,
+)
 from experiments.data import weights
+from experiments.host import paths
 from tests.ros2_bags import bag_config, composed, make_bag
 from ttc.engine.cache import StageCache
 from ttc.engine.stages import FrameStages

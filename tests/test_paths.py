@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.paths import shown
+from experiments.host.paths import shown
 
 
 def test_a_folder_under_the_working_directory_is_named_relative(

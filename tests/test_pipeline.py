@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.tools.schema import FRAME_COLUMNS, schema_problems
+from experiments.store.schema import FRAME_COLUMNS, schema_problems
 from tests.conftest import copy_frames
 from ttc import reasons
 from ttc.engine.cache import StageCache

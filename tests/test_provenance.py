@@ -21,7 +21,9 @@ def test_a_changed_report_does_not_make_the_code_version_dirty(tmp_path: Path) -
     source file makes it True."""
     clone = tmp_path / "clone"
     subprocess.run(["git", "clone", "-q", str(PROJECT_ROOT), str(clone)], check=True)
-    probe = "from experiments.provenance import code_version; print(code_version()['git_dirty'])"
+    probe = (
+        "from experiments.host.provenance import code_version; print(code_version()['git_dirty'])"
+    )
     env = {**os.environ, "PYTHONPATH": str(clone)}
 
     def dirty() -> str:

@@ -132,7 +132,7 @@ def test_listing_records_pauses_the_collector_and_restores_it(tmp_path) -> None:
     (no collection runs), and as it was after, on or off, also when the listing fails."""
     import gc
 
-    from experiments.heap import collection_paused
+    from experiments.host.heap import collection_paused
     from experiments.store import record_index
 
     synthetic_sweep(tmp_path)

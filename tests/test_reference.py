@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.reference_store import recording_scans
+from experiments.summary.references import recording_scans
 from ttc.evaluation.errors import mid_error
 from ttc.evaluation.lead_distance import lead_points, rear_distance
 from ttc.evaluation.reference import REFERENCE_CAVEATS, reference_for_sequence, reference_ttc
@@ -243,7 +243,7 @@ def test_real_reference_handles_the_truncated_last_scan(kitti_reference):
 def test_stored_reference_is_read_back_not_recomputed(kitti_dir, kitti_reference, tmp_path):
     """The reference kept in the stage cache loads in a fresh cache (no in-memory copy) as
     it was computed: text columns stored as strings, so the entry is not discarded."""
-    from experiments.reference_store import sequence_reference  # noqa: PLC0415
+    from experiments.summary.references import sequence_reference  # noqa: PLC0415
     from ttc.engine.cache import StageCache  # noqa: PLC0415
 
     first = sequence_reference(kitti_dir, StageCache(tmp_path, memory_mb=0))

@@ -207,7 +207,7 @@ def test_a_report_holds_no_detector_network_after_the_objects_reference(
     computed again) loads YOLOv3-tiny and does not hold it once the objects' reference is
     made (≈ 0.2 GB through the "every object" report's peak otherwise); its tables are those
     of the report made with the sweep's cache."""
-    from experiments.report.cli import build_report
+    from experiments.report.report_command import build_report
     from ttc.features import objects
 
     objects.clear_detector_cache()

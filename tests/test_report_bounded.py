@@ -10,7 +10,7 @@ import pandas as pd
 import pyarrow as pa
 import pytest
 
-from experiments.identity import with_neutral_axes
+from experiments.configs.identity import with_neutral_axes
 from experiments.report.judged_rows import (
     BOX_COLUMNS,
     COUNTED_ONLY,
@@ -146,13 +146,13 @@ def test_categories_sorted_when_parts_list_them_in_another_order() -> None:
 
 def test_objects_made_before_the_call_leave_the_collector_only_inside_the_block() -> None:
     """A report keeps its loaded sweeps out of the garbage collector's passes
-    (:func:`experiments.heap.long_lived`): frozen when it says so, collected again after the
+    (:func:`experiments.host.heap.long_lived`): frozen when it says so, collected again after the
     block; garbage already made is freed, not kept; after a caller's own freeze (the warm
     server's), what the block froze stays frozen."""
     import gc
     import weakref
 
-    from experiments.heap import long_lived
+    from experiments.host.heap import long_lived
 
     if gc.get_freeze_count():
         pytest.skip("this process holds frozen objects already")

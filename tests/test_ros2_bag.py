@@ -16,7 +16,7 @@ from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from experiments.config import (
+from experiments.configs.structured import (
     config_problems,
     frame_range_from_config,
     settings_from_config,

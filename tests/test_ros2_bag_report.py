@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 
 from experiments import store
-from experiments.config import config_problems, frame_range_from_config
-from experiments.recordings import recording_source_of
+from experiments.configs.structured import config_problems, frame_range_from_config
+from experiments.summary.recordings import recording_source_of
 from tests.conftest import PROJECT_ROOT, data_root
 from tests.ros2_bags import LIDAR, bag_config, make_bag, rewrite
 from tests.test_sweep import hydra_run

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.config import frame_range_from_config, settings_from_config
+from experiments.configs.structured import frame_range_from_config, settings_from_config
 from tests.conftest import copy_frames
 from tests.test_beyond_rubric import composed
 from ttc import row_parts

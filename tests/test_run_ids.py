@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import pytest
 
-from experiments.config import run_id
+from experiments.configs.structured import run_id
 from tests.test_beyond_rubric import composed
 from ttc.settings import AXES
 
@@ -71,8 +71,8 @@ def test_a_batchs_plan_file_gives_back_its_settings(tmp_path) -> None:
     has the setting and run id planned (odd values included)."""
     import json
 
-    from experiments.config import setting_config
-    from experiments.identity import setting_hash
+    from experiments.configs.identity import setting_hash
+    from experiments.configs.structured import setting_config
     from experiments.sweep.plan import BATCH_FREE_AXES, _plan_file, plan_path, read_plan
 
     free = sorted(BATCH_FREE_AXES)

@@ -16,7 +16,7 @@ import pytest
 
 from experiments import store
 from experiments.data.scale_truth import materialise
-from experiments.tools.schema import FRAME_COLUMNS
+from experiments.store.schema import FRAME_COLUMNS
 from tests.conftest import PROJECT_ROOT
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache

@@ -19,13 +19,13 @@ import pandas as pd
 import pytest
 import yaml
 
-from experiments import paths
-from experiments.config import prepared_frame_range, settings_from_config
+from experiments.configs.identity import setting_config
+from experiments.configs.structured import prepared_frame_range, settings_from_config
 from experiments.data import first_run, weights
 from experiments.data.fetch import FileEntry
-from experiments.identity import setting_config
-from experiments.reference_store import recording_boxes
+from experiments.host import paths
 from experiments.report.load import make_context
+from experiments.summary.references import recording_boxes
 from tests.test_beyond_rubric import composed
 from tests.test_download import ServerState, serving
 from ttc.engine.cache import StageCache

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from experiments.identity import axis_values, setting_config, setting_hash
+from experiments.configs.identity import axis_values, setting_config, setting_hash
 from tests.test_beyond_rubric import composed
 from ttc.engine.stages import stage_params
 from ttc.features.objects import ObjectDetectorParams, detect_objects

@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.config import settings_from_config
-from experiments.reference_store import recording_boxes
+from experiments.configs.structured import settings_from_config
+from experiments.summary.references import recording_boxes
 from tests.test_every_object import DRIVE_0009, FRAMES_0009, composed
 from ttc.engine.cache import StageCache
 from ttc.evaluation.object_reference import object_reference

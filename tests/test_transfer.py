@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.flat_configs import leaf_text
-from experiments.recordings import recording_entries, setting_of
+from experiments.store.flat_configs import leaf_text
+from experiments.summary.recordings import recording_entries, setting_of
 from ttc.evaluation.transfer import (
     best_elsewhere,
     recording_agreement,

@@ -19,7 +19,7 @@ import pytest
 
 from experiments.store import load_runs
 from experiments.sweep.workers import STARTED_DIR
-from experiments.warm import identity
+from experiments.warm import server_key
 from tests.conftest import PROJECT_ROOT
 from tests.test_launcher import _kill_first_job
 
@@ -39,17 +39,17 @@ def crash_if(gray, crash: bool = False):
 
 def test_any_code_change_or_environment_change_gives_another_key(tmp_path: Path) -> None:
     env = {"HOME": "/home/u", "PWD": "/a"}
-    key = identity.server_key(env)
-    assert identity.server_key({**env, "PWD": "/b", "SHLVL": "3"}) == key  # the shell's own
-    assert identity.server_key({**env, "TTC_DATA_DIR": "/x"}) != key
-    code = Path(identity.__file__)
+    key = server_key.server_key(env)
+    assert server_key.server_key({**env, "PWD": "/b", "SHLVL": "3"}) == key  # the shell's own
+    assert server_key.server_key({**env, "TTC_DATA_DIR": "/x"}) != key
+    code = Path(server_key.__file__)
     before = code.stat()
     try:
         os.utime(code, ns=(before.st_atime_ns, before.st_mtime_ns + 1_000_000))
-        assert identity.server_key(env) != key  # edited: another server, never this one
+        assert server_key.server_key(env) != key  # edited: another server, never this one
     finally:
         os.utime(code, ns=(before.st_atime_ns, before.st_mtime_ns))
-    assert identity.server_key(env) == key
+    assert server_key.server_key(env) == key
 
 
 def test_files_beside_the_code_keep_the_key_a_package_install_does_not(
@@ -61,23 +61,23 @@ def test_files_beside_the_code_keep_the_key_a_package_install_does_not(
     project, site = tmp_path / "project", tmp_path / "site"
     project.mkdir()
     site.mkdir()
-    monkeypatch.setattr(identity, "project_top", lambda: project)
+    monkeypatch.setattr(server_key, "project_top", lambda: project)
     search = ["", str(project), str(site)]
-    key = identity.server_key({}, search)
+    key = server_key.server_key({}, search)
     (project / "sweeps").mkdir()
-    assert identity.server_key({}, search) == key
+    assert server_key.server_key({}, search) == key
     time.sleep(0.01)
     (site / "newpackage").mkdir()
-    assert identity.server_key({}, search) != key
+    assert server_key.server_key({}, search) != key
 
 
 def test_the_socket_folder_must_be_private(tmp_path: Path) -> None:
     folder = tmp_path / "ttc-bench"
-    assert identity.runtime_dir({"XDG_RUNTIME_DIR": str(tmp_path)}) == folder
+    assert server_key.runtime_dir({"XDG_RUNTIME_DIR": str(tmp_path)}) == folder
     folder.chmod(0o755)
     with pytest.raises(OSError, match="not a private folder"):
-        identity.runtime_dir({"XDG_RUNTIME_DIR": str(tmp_path)})
-    assert not identity.enabled({identity.SWITCH: "0"})
+        server_key.runtime_dir({"XDG_RUNTIME_DIR": str(tmp_path)})
+    assert not server_key.enabled({server_key.SWITCH: "0"})
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +86,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[dict, psu
     after the module's tests)."""
     root = tmp_path_factory.mktemp("warm")
     (root / "run").mkdir(mode=0o700)
-    env = {**os.environ, identity.SWITCH: "1", identity.IDLE_VARIABLE: "300",
+    env = {**os.environ, server_key.SWITCH: "1", server_key.IDLE_VARIABLE: "300",
            "XDG_RUNTIME_DIR": str(root / "run"), "TTC_RESULTS_DIR": str(root / "sweeps"),
            "TTC_CACHE_DIR": str(root / "cache")}  # fmt: skip
     started = subprocess.run([sys.executable, "-m", "experiments.warm.client"], env=env,

@@ -9,7 +9,7 @@ from hydra import initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.types import RunMode
 
-from experiments.config import register_configs
+from experiments.configs.structured import register_configs
 from experiments.sweep.warm_up import swept_keys, warm_up
 from tests.conftest import PROJECT_ROOT
 

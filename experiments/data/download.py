@@ -35,7 +35,7 @@ from experiments.data.fetch import (  # noqa: F401 (part of this command's inter
     read_manifest,
     sha256_of,
 )
-from experiments.paths import DOWNLOAD_DIR, default_data_root
+from experiments.host.paths import DOWNLOAD_DIR, default_data_root
 from ttc.atomic import write_bytes_atomic
 
 DEFAULT_BASE_URL = (

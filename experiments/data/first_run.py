@@ -28,9 +28,9 @@ from typing import Any, NoReturn, TypeVar
 
 from omegaconf import OmegaConf
 
-from experiments import paths
 from experiments.data import download, weights
 from experiments.data.fetch import DiskFullError, DownloadError, MismatchError
+from experiments.host import paths
 from ttc.features.model_files import BUNDLED_MODEL, SOURCES, ModelPaths, uses_bundled_files
 
 NO_DOWNLOAD_FLAG = "--no-download"

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import paths
+from experiments.host import paths
 from ttc.engine.cache import StageCache, cache_key
 from ttc.engine.stages import FrameStages
 from ttc.features.descriptors import DESCRIPTORS

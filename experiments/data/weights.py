@@ -27,7 +27,6 @@ from pathlib import Path, PurePosixPath
 
 from tqdm import tqdm
 
-from experiments import paths
 from experiments.data.fetch import (  # noqa: F401 (sha256_of: part of this module's interface)
     DownloadError,
     FetchOptions,
@@ -37,6 +36,7 @@ from experiments.data.fetch import (  # noqa: F401 (sha256_of: part of this modu
     read_manifest,
     sha256_of,
 )
+from experiments.host import paths
 from ttc.atomic import write_bytes_atomic
 from ttc.features.model_files import BUNDLED_MODEL, SOURCES, local_model_dir
 

@@ -1,5 +1,5 @@
 """``python -m experiments.judge`` = ``ttc-bench judge``."""
 
-from experiments.judge.cli import main
+from experiments.judge.judge_command import main
 
 main()

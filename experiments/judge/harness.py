@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from experiments.paths import CONF_DIR, SOURCE_ROOT
+from experiments.host.paths import CONF_DIR, SOURCE_ROOT
 from ttc import evaluation as ev
 from ttc.evaluation.external import distance_ratio
 

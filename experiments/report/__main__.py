@@ -1,5 +1,5 @@
-"""``python -m experiments.report SWEEP [SWEEP ...] --out DIR`` (see :mod:`experiments.report.cli`)."""
+"""``python -m experiments.report SWEEP [SWEEP ...] --out DIR`` (see :mod:`experiments.report.report_command`)."""
 
-from experiments.report.cli import main
+from experiments.report.report_command import main
 
 main()

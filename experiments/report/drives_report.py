@@ -1,7 +1,7 @@
 """Sweeps over several drives: which run is on which drive, the setting shared by a setting's
 runs on every drive, and the drives report (``drives.md``, ``drives_ranking.csv``): metrics
 and rankings per drive and pooled (:mod:`ttc.evaluation.drives`). The FP.5 / FP.6 reports of
-each drive are written by :func:`experiments.report.cli.build_report` into ``<out>/<id>/``
+each drive are written by :func:`experiments.report.report_command.build_report` into ``<out>/<id>/``
 (the recording id, :func:`experiments.data.datasets.recording_id`; pages show its name)."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ from pathlib import Path
 import pandas as pd
 
 from experiments.data.datasets import recording_id, recording_names
-from experiments.recordings import run_ids_by_recording, runs_drive_rankings
-from experiments.reference_store import recording_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData
+from experiments.summary.recordings import run_ids_by_recording, runs_drive_rankings
+from experiments.summary.references import recording_references
 from ttc import evaluation as ev
 from ttc.settings import AXES
 
@@ -65,7 +65,7 @@ def by_detector(data: SweepData) -> dict[str, SweepData]:
 
 def drive_references(data: SweepData, ctx: Context) -> dict[str, pd.DataFrame]:
     """What the runs of every recording of ``data`` are judged against
-    (:func:`experiments.reference_store.recording_references`), by recording id
+    (:func:`experiments.summary.references.recording_references`), by recording id
     (:func:`experiments.data.datasets.recording_id`; sorted by folder)."""
     references = recording_references(data.frames, data.runs, ctx.root, ctx.cache)
     return {recording_id(sequence): ref for sequence, ref in references.items()}

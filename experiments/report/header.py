@@ -10,10 +10,10 @@ from typing import Any
 
 import pandas as pd
 
-from experiments.flat_configs import config_table
-from experiments.paths import shown
-from experiments.provenance import code_version, machine, package_versions
+from experiments.host.paths import shown
+from experiments.host.provenance import code_version, machine, package_versions
 from experiments.report.load import SweepData
+from experiments.store.flat_configs import config_table
 from ttc.settings import AXES
 
 
@@ -24,7 +24,7 @@ def _unique(values: Iterable[Any]) -> str:
 
 def _common_config(configs: pd.Series) -> tuple[dict[str, Any], list[str]]:
     """Keys (dotted) with one value (JSON text) in every run's config, and the keys that vary
-    (:func:`experiments.flat_configs.config_table`: each config parsed once per report)."""
+    (:func:`experiments.store.flat_configs.config_table`: each config parsed once per report)."""
     flat = config_table(configs.dropna())
     if flat.empty:
         return {}, []

@@ -16,10 +16,10 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from experiments.heap import release_freed_memory
-from experiments.identity import with_neutral_axes
-from experiments.recordings import run_ids_by_recording, setting_of
-from experiments.tools.schema import FRAME_COLUMNS
+from experiments.configs.identity import with_neutral_axes
+from experiments.host.heap import release_freed_memory
+from experiments.store.schema import FRAME_COLUMNS
+from experiments.summary.recordings import run_ids_by_recording, setting_of
 from ttc import evaluation as ev
 from ttc.evaluation.errors import is_in
 from ttc.evaluation.stage_times import group_codes
@@ -53,7 +53,7 @@ UNREAD_COLUMNS: tuple[str, ...] = (
     "lidar_outliers_prev", "lidar_outliers_curr",
 )  # fmt: skip
 #: Fragments read (:func:`read_rows`) between two
-#: :func:`~experiments.heap.release_freed_memory` calls (``grand`` 0–18: 175
+#: :func:`~experiments.host.heap.release_freed_memory` calls (``grand`` 0–18: 175
 #: fragments; its load step peaked 0.28 GB higher without them, and a call after every
 #: fragment costs ≈ 25 ms of system time each); their stage times are counted together
 #: (a count per fragment: 1.2 s of small tables for ``grand``'s 175).
@@ -242,7 +242,7 @@ def stacked(parts: list[pd.DataFrame]) -> pd.DataFrame:
 
 def compute_times(frames: pd.DataFrame, counts: ev.StageCounts) -> pd.Series:
     """``ms_compute_per_frame`` (ms) of the judged rows ``frames`` (their axes filled:
-    :func:`~experiments.identity.with_neutral_axes`), looked up in ``counts``, the computed
+    :func:`~experiments.configs.identity.with_neutral_axes`), looked up in ``counts``, the computed
     stage times of every row of the sweeps (:func:`ttc.evaluation.compute_times`), whose axes
     are filled here alike."""
     filled = {name: with_neutral_axes(table) for name, table in counts.items()}

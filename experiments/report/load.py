@@ -16,18 +16,18 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import store
-from experiments.config import (
+from experiments.configs.structured import (
     frame_range_from_config,
     settings_from_config,
     with_neutral_axes,
     with_neutral_options,
 )
 from experiments.data.first_run import ensure_setting_models
-from experiments.flat_configs import flatten_kept
-from experiments.heap import release_freed_memory
-from experiments.paths import default_cache_dir, default_data_root, resolve
-from experiments.reference_store import recording_references, sequence_of
+from experiments.host.heap import release_freed_memory
+from experiments.host.paths import default_cache_dir, default_data_root, resolve
 from experiments.report import judged_rows
+from experiments.store.flat_configs import flatten_kept
+from experiments.summary.references import recording_references, sequence_of
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail

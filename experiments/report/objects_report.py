@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiments.reference_store import object_references
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.judged_rows import camera_runs
 from experiments.report.load import Context, SweepData
 from experiments.report.plots import plot_breakdown, plot_objects, save_figure
+from experiments.summary.references import object_references
 from ttc.evaluation.difficulty import RANKING_LEVELS
 from ttc.evaluation.errors import rows_of_runs
 from ttc.evaluation.object_errors import (
@@ -221,7 +221,7 @@ def _page(
 def recording_objects_report(data: SweepData, ctx: Context, out: Path) -> pd.DataFrame | None:
     """:func:`objects_report` of the runs of one real recording (nothing for a generated one,
     which has no objects besides its lead: None), its reference from
-    :func:`experiments.reference_store.object_references`."""
+    :func:`experiments.summary.references.object_references`."""
     refs = object_references(data.frames, data.runs,
                              lambda run_id: ctx.detector_setup(data.runs, run_id),
                              ctx.root, ctx.cache)  # fmt: skip

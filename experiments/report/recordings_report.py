@@ -17,11 +17,11 @@ from pathlib import Path
 import pandas as pd
 
 from experiments.data.datasets import recording_id, recording_names
-from experiments.recordings import recording_of
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.html.page import markdown_html, page, write_assets
 from experiments.report.load import SweepData
+from experiments.summary.recordings import recording_of
 from ttc import evaluation as ev
 from ttc.settings import AXES, only_sensor_axes
 
@@ -110,7 +110,7 @@ def with_labels(table: pd.DataFrame) -> pd.DataFrame:
     """``table`` with ``setting`` replaced by a readable label, per sensor: the values of the
     axes that vary among its settings joined by ``/`` (the id when none varies or labels
     collide); the dataset is the recording's, and the camera's label leaves out the axes that
-    change only the lidar or the fused TTC (:func:`experiments.recordings.setting_of`)."""
+    change only the lidar or the fused TTC (:func:`experiments.summary.recordings.setting_of`)."""
     return pd.concat([_labelled(part, sensor) for sensor, part in table.groupby("sensor")])
 
 

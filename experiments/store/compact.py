@@ -1,5 +1,5 @@
 """A sweep's small rows files merged into larger ones, atomically (``ttc-bench compact``,
-:mod:`experiments.tools.compact`).
+:mod:`experiments.tools.compact_command`).
 
 Consecutive fragments (in the dataset's order, :func:`experiments.store.dataset.fragments`)
 are merged into ``runs/compact-<first 12 hex digits of its SHA-256>.parquet`` of at most

@@ -23,7 +23,7 @@ import pickle
 from pathlib import Path
 from typing import Any
 
-from experiments.heap import collection_paused
+from experiments.host.heap import collection_paused
 from experiments.store.files import INDEX_DIR, RUNS_DIR, Identity, keep_index, write_index
 
 #: A listing writes an index file when it read at least this many records from their files.
@@ -62,7 +62,7 @@ def list_with_identities(sweep_dir: Path) -> dict[str, tuple[Identity, dict[str,
     """``{file name: (identity, record)}`` of every readable record, by file name; writes an
     index file of those read from their files when they are :data:`WRITE_AT_LEAST` or more
     (nothing when the folder is read-only). The collector paused meanwhile
-    (:func:`experiments.heap.collection_paused`)."""
+    (:func:`experiments.host.heap.collection_paused`)."""
     with collection_paused():
         return _listed(sweep_dir)
 

@@ -20,10 +20,11 @@ import cv2
 import pandas as pd
 from omegaconf import DictConfig
 
-from experiments import progress, store
-from experiments.config import prepared_frame_range
+from experiments import store
+from experiments.configs.structured import prepared_frame_range
 from experiments.data.first_run import setting_models
-from experiments.records import now, peak_rss_mb, record_head, row_statistics
+from experiments.store import progress
+from experiments.store.records import now, peak_rss_mb, record_head, row_statistics
 from experiments.sweep.compose import core_settings
 from experiments.sweep.plan import read_plan
 from ttc.engine.cache import StageCache
@@ -122,7 +123,7 @@ def _compute(cfg: DictConfig, sweep_dir: Path, todo: list[dict[str, Any]]) -> li
 
 def _statistics(rows: pd.DataFrame) -> dict[str, Any]:
     """Per member: stages computed (not from the cache), and the members with frame errors
-    (what :func:`experiments.records.row_statistics` finds, for all members at once)."""
+    (what :func:`experiments.store.records.row_statistics` finds, for all members at once)."""
     if not len(rows):
         return {"computed": pd.Series(dtype=int), "errors": set()}
     cached = rows[[c for c in rows if c.startswith("cached_")]].to_numpy(dtype=bool)
@@ -147,7 +148,7 @@ def _outcome(record: dict, error: BaseException | None, n_rows: int, wall_s: flo
 
 def _with_run_columns(rows: pd.DataFrame, records: list[dict[str, Any]]) -> pd.DataFrame:
     """Prefix the rows with their run's id, sweep id, axis values and code version (the
-    columns :func:`experiments.records.with_run_columns` gives a run's own rows)."""
+    columns :func:`experiments.store.records.with_run_columns` gives a run's own rows)."""
     if not len(rows):
         return rows
     keys = ("run_id", "sweep_id", *AXES, "git_commit")

@@ -11,7 +11,7 @@ template with that one value), then derives every job from them:
   composition differs from the template's only under ``key`` (and its choice in
   ``hydra.runtime.choices``), interpolations unresolved; and when no two differing overrides
   set overlapping keys (one under the other);
-* a job's **setting** (:func:`experiments.identity.setting_config`, what the planner reads) is
+* a job's **setting** (:func:`experiments.configs.identity.setting_config`, what the planner reads) is
   made of its entries, each resolved once per distinct set of overrides it can depend on: the
   differing overrides that set the entry itself or any top-level key its interpolations reach
   (read from the template's and the variants' unresolved configs, transitively).
@@ -25,7 +25,7 @@ A test composes every option of every config group and every experiment both way
 
 :func:`core_settings` makes the core's :class:`ttc.settings.Settings` of many settings (a
 batch job's): each field is converted once per distinct value of the entries it is made of,
-and its converter sees only those entries (:data:`experiments.config.SETTINGS_FIELDS`).
+and its converter sees only those entries (:data:`experiments.configs.structured.SETTINGS_FIELDS`).
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override, OverrideType
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from experiments.config import SETTINGS_FIELDS, settings_field
-from experiments.identity import SETTING_KEYS, finish_setting, setting_config, setting_entry
+from experiments.configs.identity import SETTING_KEYS, finish_setting, setting_config, setting_entry
+from experiments.configs.structured import SETTINGS_FIELDS, settings_field
 from experiments.sweep.containers import (
     ANY_KEY,
     comparable,
@@ -316,7 +316,7 @@ class Composer:
             yield cfg
 
     def setting(self, overrides: Sequence[str]) -> dict[str, Any]:
-        """The :func:`experiments.identity.setting_config` of the job with these overrides;
+        """The :func:`experiments.configs.identity.setting_config` of the job with these overrides;
         entries equal between jobs are the same objects."""
         overrides = list(overrides)
         parts = self.parts(overrides)

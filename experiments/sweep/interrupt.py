@@ -15,8 +15,8 @@ from pathlib import Path
 from types import FrameType
 from typing import NoReturn
 
-from experiments.callbacks import INTERRUPTED_STATUS, stop_progress
 from experiments.store import RUNS_DIR
+from experiments.sweep.callbacks import INTERRUPTED_STATUS, stop_progress
 
 
 def done_count(sweep_dir: Path, run_ids: Sequence[str]) -> int:

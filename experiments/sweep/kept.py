@@ -84,7 +84,7 @@ def earlier_key(config: DictConfig) -> str:
     import os  # noqa: PLC0415
     from importlib import metadata  # noqa: PLC0415
 
-    from experiments.provenance import source_identities  # noqa: PLC0415
+    from experiments.host.provenance import source_identities  # noqa: PLC0415
 
     sources = OmegaConf.to_container(config.hydra.runtime.config_sources, resolve=False)
     extra = tuple(

@@ -29,9 +29,10 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import progress, store
-from experiments.identity import setting_hash, value_text
-from experiments.records import now, peak_rss_mb, record_head
+from experiments import store
+from experiments.configs.identity import setting_hash, value_text
+from experiments.store import progress
+from experiments.store.records import now, peak_rss_mb, record_head
 from experiments.sweep.compose import Composer
 from experiments.sweep.finished import plan_line
 from ttc.features.matching import check_features
@@ -87,7 +88,7 @@ def batch_key(
     setting: dict[str, Any], memo: dict[int, tuple[Any, str]]
 ) -> tuple[tuple[str, str], ...]:
     """What the settings of one batch have in common (all but :data:`BATCH_FREE_AXES`): each
-    entry's JSON, kept in ``memo`` by object (:func:`experiments.identity.value_text`: a
+    entry's JSON, kept in ``memo`` by object (:func:`experiments.configs.identity.value_text`: a
     sweep's settings share their entries; 6,720 settings dumped whole took 0.13 s)."""
     return tuple(
         (k, value_text(setting[k], memo)) for k in sorted(setting) if k not in BATCH_FREE_AXES
@@ -269,7 +270,7 @@ def plan_key(jobs: Sequence[Sequence[str]], config: DictConfig) -> str:
     classes fill in defaults) and the Hydra and OmegaConf versions."""
     from importlib import metadata  # noqa: PLC0415
 
-    from experiments.provenance import source_identities  # noqa: PLC0415
+    from experiments.host.provenance import source_identities  # noqa: PLC0415
 
     task = {k: v for k, v in OmegaConf.to_container(config, resolve=False).items()
             if k != "hydra"}  # fmt: skip

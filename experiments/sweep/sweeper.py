@@ -8,7 +8,7 @@ Hydra's basic sweeper composes every job's config in the main process before lau
 of each swept key (:func:`experiments.sweep.compose.variant_jobs`: the compositions the
 :class:`~experiments.sweep.compose.Composer` derives every job from), plus one per distinct
 combination of the ``dataset`` overrides (frame ranges are checked across their keys): a typo
-in any key or value, and any value the ``validator`` (``experiments.config.validate_config``:
+in any key or value, and any value the ``validator`` (``experiments.configs.structured.validate_config``:
 parameter ranges, frame range, data present) refuses, fails with Hydra's message before any
 job runs.
 
@@ -49,7 +49,7 @@ from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.data.first_run import ensure_config_models
-from experiments.heap import freeze_alive
+from experiments.host.heap import freeze_alive
 from experiments.sweep.compose import Composer, variant_jobs
 from experiments.sweep.earlier import EarlierPlan
 from experiments.sweep.interrupt import SigintSeen, exit_interrupted, watch_sigint

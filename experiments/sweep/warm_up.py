@@ -21,7 +21,7 @@ import logging
 
 from omegaconf import DictConfig
 
-from experiments.config import (
+from experiments.configs.structured import (
     prepared_frame_range,
     sequence_dir,
     settings_from_config,
@@ -37,7 +37,7 @@ SHARED_GROUPS = ("dataset", "objects", "lidar")
 
 
 def swept_keys(master: DictConfig) -> set[str]:
-    """The keys a multirun sweeps (:func:`experiments.config.swept_overrides`)."""
+    """The keys a multirun sweeps (:func:`experiments.configs.structured.swept_overrides`)."""
     return set(swept_overrides(master))
 
 
@@ -54,7 +54,7 @@ def warm_up(master: DictConfig) -> None:
         setting_models(settings.objects, allowed=False)  # a copy the sweep downloaded
         tasks = shared_frame_tasks(settings, frames, cache)
         if master.dataset.get("generator") is None:  # the exact truth needs no reference
-            from experiments.reference_store import reference_task  # noqa: PLC0415 (SciPy)
+            from experiments.summary.references import reference_task  # noqa: PLC0415 (SciPy)
 
             tasks.insert(0, reference_task(sequence_dir(master)))
         missing = [t for t in tasks if not cache.path(t.stage, t.key).is_file()]

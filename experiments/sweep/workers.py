@@ -38,7 +38,7 @@ from joblib import effective_n_jobs
 from joblib.externals.loky import get_reusable_executor, process_executor
 from omegaconf import DictConfig, open_dict
 
-from experiments.heap import freeze_alive
+from experiments.host.heap import freeze_alive
 from experiments.sweep.compose import Composer
 from experiments.sweep.job_run import run_sweep_job
 

@@ -63,8 +63,8 @@ from typing import Any
 
 from experiments import store
 from experiments.data.first_run import ensure_model_files
-from experiments.paths import base_dir, default_data_root
-from experiments.provenance import code_version, machine, package_versions
+from experiments.host.paths import base_dir, default_data_root
+from experiments.host.provenance import code_version, machine, package_versions
 from experiments.tools.floor import compute_floor, hydra_compose_seconds, steps_floor_ms
 from experiments.tools.timed import sweep_breakdown, timed_report, timed_sweep
 from ttc.features.descriptors import RUBRIC_DESCRIPTORS

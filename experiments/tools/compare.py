@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments.paths import shown
+from experiments.host.paths import shown
 from experiments.report.encode import markdown_table, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.load import Context, SweepData, load_sweeps, make_context, reference_for

@@ -3,7 +3,7 @@
 For each recording and each detector setting (``objects=...``, ``objects.tiles=N``): every
 frame's boxes (:func:`ttc.features.objects.detect_objects`, timed on one OpenCV thread: the
 mean over the frames) and each box's lidar distance (its own points' best-supported depth
-group, :func:`experiments.reference_store.recording_boxes`, the every-object code's
+group, :func:`experiments.summary.references.recording_boxes`, the every-object code's
 association).
 Prints a markdown table (docs/features.md "Object detectors")::
 
@@ -21,10 +21,14 @@ import cv2
 import pandas as pd
 from hydra import compose, initialize_config_dir
 
-from experiments import paths
-from experiments.config import prepared_frame_range, register_configs, settings_from_config
+from experiments.configs.structured import (
+    prepared_frame_range,
+    register_configs,
+    settings_from_config,
+)
 from experiments.data.first_run import ensure_setting_models
-from experiments.reference_store import recording_boxes
+from experiments.host import paths
+from experiments.summary.references import recording_boxes
 from ttc.engine.cache import StageCache
 from ttc.evaluation.ttc_bins import band_counts
 from ttc.features.objects import detect_objects

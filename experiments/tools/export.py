@@ -16,7 +16,7 @@ Usage::
 ``/ttc_bench/objects`` (``foxglove.SceneUpdate``) one message a frame, and ``/ttc_bench/ttc``
 (JSON, ``ttc_bench.TrackTtc``) one message per tracked box and frame. Times are the
 recording's (:func:`sensor_clocks`). The reference TTC is every object's
-(:func:`experiments.reference_store.object_references`).
+(:func:`experiments.summary.references.object_references`).
 """
 
 from __future__ import annotations
@@ -33,10 +33,10 @@ import pyarrow.dataset as ds
 
 from experiments import store
 from experiments.data.first_run import fail
-from experiments.paths import resolve
-from experiments.recordings import recording_source_of
-from experiments.reference_store import object_references
+from experiments.host.paths import resolve
 from experiments.report.load import Context, make_context
+from experiments.summary.recordings import recording_source_of
+from experiments.summary.references import object_references
 from experiments.tools import foxglove_messages as fm
 from experiments.tools.mcap_out import McapOut
 from ttc.features.objects import ModelFileError

@@ -23,7 +23,7 @@ from typing import Any
 
 import cv2
 
-from experiments.paths import CONF_DIR
+from experiments.host.paths import CONF_DIR
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_settings, upstream_key
 from ttc.engine.stages import stream
@@ -88,7 +88,7 @@ def grid_settings(grid: dict[str, Any]) -> list[Settings]:
     option's parameters as its YAML sets them (one Hydra composition per option)."""
     from hydra import compose, initialize_config_dir  # noqa: PLC0415
 
-    from experiments.config import register_configs, settings_from_config  # noqa: PLC0415
+    from experiments.configs.structured import register_configs, settings_from_config  # noqa: PLC0415
 
     register_configs()
     options = {"matcher": GRID_MATCHERS, "selector": GRID_SELECTORS,
@@ -144,7 +144,7 @@ def hydra_compose_seconds(repeats: int = 5) -> float:
     from hydra import compose, initialize_config_dir  # noqa: PLC0415
     from hydra.core.global_hydra import GlobalHydra  # noqa: PLC0415
 
-    from experiments.config import register_configs  # noqa: PLC0415
+    from experiments.configs.structured import register_configs  # noqa: PLC0415
 
     register_configs()
     job = ["detector=orb", "descriptor=brisk", "matcher=flann", "selector=nn"]

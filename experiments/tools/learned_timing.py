@@ -22,7 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from experiments import paths
+from experiments.host import paths
 from ttc.features import learned
 from ttc.features.dense_flow import DenseFlowParams, flow_keypoints
 from ttc.features.keypoints import FastParams, detect_keypoints

@@ -36,14 +36,14 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig
 
-from experiments import paths
-from experiments.config import (
+from experiments.configs.structured import (
     prepared_frame_range,
     recording_source,
     register_configs,
     settings_from_config,
 )
 from experiments.data.first_run import ensure_data, ensure_setting_models, fail
+from experiments.host import paths
 from experiments.report.encode import save_png
 from experiments.run import check_data
 from ttc import draw

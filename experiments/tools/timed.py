@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from experiments import store
-from experiments.paths import base_dir
+from experiments.host.paths import base_dir
 
 
 def _timed_command(

@@ -22,7 +22,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from experiments.warm.identity import enabled, runtime_dir, server_key, socket_path
+from experiments.warm.server_key import enabled, runtime_dir, server_key, socket_path
 
 #: Reply bytes of the server: the command is taken, or refused (run it here).
 TAKEN, REFUSED = b"A", b"R"

@@ -28,19 +28,19 @@ import time
 from pathlib import Path
 
 from experiments.cli import SUBCOMMANDS
-from experiments.heap import freeze_alive
+from experiments.host.heap import freeze_alive
 from experiments.warm.client import REFUSED, STATUS, TAKEN
-from experiments.warm.identity import idle_seconds, server_key
+from experiments.warm.server_key import idle_seconds, server_key
 
 #: Modules imported once by the server (what a sweep imports in its main process and in its
 #: workers): every command forked from it starts with them.
 PRELOAD = (
     "experiments.cli",
     "experiments.run",
-    "experiments.job",
-    "experiments.collect",
-    "experiments.callbacks",
-    "experiments.reference_store",
+    "experiments.sweep.job",
+    "experiments.summary.collect",
+    "experiments.sweep.callbacks",
+    "experiments.summary.references",
     "experiments.sweep.plan",
     "experiments.sweep.sweeper",
     "experiments.sweep.launcher",

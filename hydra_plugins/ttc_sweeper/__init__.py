@@ -21,7 +21,7 @@ class TTCSweeperConf:
     #: The swept overrides, ``{key: values}`` (an experiment's ``hydra.sweeper.params``).
     params: Optional[dict[str, str]] = None  # noqa: UP045 (Hydra)
     #: Dotted path of a function(cfg) raising ValueError for a config whose values are wrong.
-    validator: Optional[str] = "experiments.config.validate_config"  # noqa: UP045 (Hydra)
+    validator: Optional[str] = "experiments.configs.structured.validate_config"  # noqa: UP045 (Hydra)
     #: Most settings one job computes together (1: one setting per job, no batches).
     max_settings_per_job: int = 200
 

@@ -9,7 +9,7 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-from experiments.paths import PROJECT_ROOT
+from experiments.host.paths import PROJECT_ROOT
 
 PACKAGES = ("opencv-contrib-python-headless", "numpy", "scipy", "pandas", "pyarrow", "hydra-core")
 

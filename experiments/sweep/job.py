@@ -20,15 +20,22 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 
-from experiments import progress, store
-from experiments.config import (
+from experiments import store
+from experiments.configs.structured import (
     prepared_frame_range,
     setting_config,
     setting_hash,
     settings_from_config,
 )
 from experiments.data.first_run import setting_models
-from experiments.records import now, peak_rss_mb, record_head, row_statistics, with_run_columns
+from experiments.store import progress
+from experiments.store.records import (
+    now,
+    peak_rss_mb,
+    record_head,
+    row_statistics,
+    with_run_columns,
+)
 from experiments.sweep.batch import run_batch
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import run_setting

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiments.config import setting_hash
+from experiments.configs.structured import setting_hash
 from experiments.data.datasets import bag_source, recording_id
-from experiments.flat_configs import (
+from experiments.store.flat_configs import (
     NO_LEAF,
     config_table,
     entry_leaves,
@@ -41,7 +41,7 @@ def recording_of(runs: pd.DataFrame) -> pd.Series:
 @functools.lru_cache(maxsize=1 << 17)
 def _sequence(config: str) -> str:
     """``dataset.sequence`` of a run's stored config (each config text read once per
-    process, only up to its ``dataset`` entry: :func:`experiments.flat_configs.entry_leaves`)."""
+    process, only up to its ``dataset`` entry: :func:`experiments.store.flat_configs.entry_leaves`)."""
     return leaf_value(entry_leaves(config, "dataset")["dataset.sequence"])
 
 
@@ -68,7 +68,7 @@ def recording_entries(runs: pd.DataFrame, flat: pd.DataFrame | None = None) -> s
     lidar crop, its camera pair distance), also where an option's own value differs from
     another's (``camera_ttc=vertical_ratio``'s 20 px beside ``median_ratio``'s 100 px on drive
     0052, 0 px for both on sequence 04); an entry a sweep varies within one choice is a
-    setting's. ``flat``: :func:`~experiments.flat_configs.config_table` of the runs' configs,
+    setting's. ``flat``: :func:`~experiments.store.flat_configs.config_table` of the runs' configs,
     when made already. A missing entry is a value of its own. Each entry is checked on its
     codes against those of its group's first run (a group-by's ``nunique`` of the 130 entries
     of ``grand``'s 28,000 runs took 0.25 s)."""

@@ -32,9 +32,9 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from experiments import store
-from experiments.config import data_root
-from experiments.recordings import run_ids_by_recording
-from experiments.reference_store import recording_references
+from experiments.configs.structured import data_root
+from experiments.summary.recordings import run_ids_by_recording
+from experiments.summary.references import recording_references
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.settings import AXES
@@ -55,7 +55,7 @@ def _metrics_of(
     frames: pd.DataFrame, runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None
 ) -> pd.DataFrame:
     """Metrics of the ok runs, each against its own recording's reference
-    (:func:`experiments.reference_store.recording_references`: a generated recording's exact
+    (:func:`experiments.summary.references.recording_references`: a generated recording's exact
     truth); empty when none is ok."""
     ok = runs[runs["status"] == "ok"]
     if ok.empty or frames.empty:

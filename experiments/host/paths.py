@@ -11,7 +11,7 @@ The one place that resolves them. Two layouts:
   cache folder (``$XDG_CACHE_HOME/ttc-bench``, default ``~/.cache/ttc-bench``).
 
 Each default can be moved by an environment variable (:data:`LOCATIONS`); the Hydra configs
-read them through the ``ttc_path`` resolver (:func:`experiments.config.register_configs`), so
+read them through the ``ttc_path`` resolver (:func:`experiments.configs.structured.register_configs`), so
 the command line, the reports and the download command agree.
 """
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 #: The folder holding the ``ttc``, ``experiments`` and ``hydra_plugins`` packages: the checkout
 #: root, or ``site-packages`` for an installed wheel.
-SOURCE_ROOT = Path(__file__).resolve().parents[1]
+SOURCE_ROOT = Path(__file__).resolve().parents[2]
 
 
 def _checkout(root: Path) -> Path | None:
@@ -37,7 +37,7 @@ CHECKOUT = _checkout(SOURCE_ROOT)
 PROJECT_ROOT = SOURCE_ROOT
 #: The Hydra config tree: ``conf/`` in a checkout, the copy packaged as ``experiments/conf``
 #: (pyproject ``[tool.setuptools.package-dir]``) in a wheel.
-CONF_DIR = SOURCE_ROOT / "conf" if CHECKOUT is not None else Path(__file__).parent / "conf"
+CONF_DIR = SOURCE_ROOT / "conf" if CHECKOUT is not None else SOURCE_ROOT / "experiments" / "conf"
 #: Manifests of what the first run downloads (frames, YOLO weights).
 DOWNLOAD_DIR = CONF_DIR / "download"
 

@@ -13,8 +13,8 @@ from typing import Any
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import paths
 from experiments.data import datasets
+from experiments.host import paths
 from ttc import settings
 from ttc.features.descriptors import NO_DESCRIPTOR
 from ttc.features.learned_params import LEARNED_MATCHERS

@@ -2,7 +2,7 @@
 one row per run × frame pair × box pair).
 
 The schema table of docs/results.md is generated from :data:`FRAME_COLUMNS`
-(``python -m experiments.tools.schema``) and the tests check real sweeps against it.
+(``python -m experiments.store.schema``) and the tests check real sweeps against it.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
-"""The end-of-sweep summary's run metrics, kept per fragment (:mod:`experiments.kept_tables`).
+"""The end-of-sweep summary's run metrics, kept per fragment (:mod:`experiments.summary.kept_tables`).
 
 The summary of a sweep on one recording ranks :func:`ttc.evaluation.run_metrics` of every
 run's lead rows against the recording's reference. A run's metrics are its own rows', but for
 ``ms_compute_per_frame``: a cached stage's load time is replaced by the median time of
 computing it over every run's rows (:mod:`ttc.evaluation.stage_times`). So each fragment's
-runs' metrics are kept under a key of its lead rows (:mod:`experiments.lead_cache`), the
+runs' metrics are kept under a key of its lead rows (:mod:`experiments.summary.lead_rows`), the
 reference and this code, beside a digest of the computing times its runs look up: per cached
 stage and value of its axes (``detector``, ...), every computed time the sweep's rows count
 (:func:`counts_digests`). A later summary counts the computed times of every lead row (their
@@ -27,9 +27,9 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from experiments import kept_tables as kt
-from experiments.kept_tables import FRAGMENT
-from experiments.lead_cache import LeadRows
+from experiments.summary import kept_tables as kt
+from experiments.summary.kept_tables import FRAGMENT
+from experiments.summary.lead_rows import LeadRows
 from ttc.atomic import write_bytes_atomic
 
 #: Kind (file name prefix) of the kept run metrics.

@@ -19,9 +19,7 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from experiments import paths
-from experiments.data import datasets
-from experiments.identity import (  # noqa: F401 (also imported from here)
+from experiments.configs.identity import (  # noqa: F401 (also imported from here)
     NEUTRAL_OPTIONS,
     SETTING_KEYS,
     SUBPIXEL_SUFFIX,
@@ -35,6 +33,8 @@ from experiments.identity import (  # noqa: F401 (also imported from here)
     with_neutral_axes,
     with_neutral_options,
 )
+from experiments.data import datasets
+from experiments.host import paths
 from ttc.features.descriptors import DESCRIPTORS, NO_DESCRIPTOR
 from ttc.features.keypoints import DETECTORS
 from ttc.features.learned_params import LEARNED_MATCHERS

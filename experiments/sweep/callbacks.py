@@ -23,9 +23,9 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from experiments.config import data_root, swept_overrides
-from experiments.progress import PROGRESS_DIR, PROGRESS_ENV, progress_dir, progress_outcomes
+from experiments.configs.structured import data_root, swept_overrides
 from experiments.store import StoreError
+from experiments.store.progress import PROGRESS_DIR, PROGRESS_ENV, progress_dir, progress_outcomes
 
 
 def count_jobs(config: DictConfig) -> int | None:
@@ -101,7 +101,7 @@ class SweepCallback(Callback):
         died: the launcher reports that) as ``failed`` with the reason."""
         if job_return.status != JobStatus.FAILED:
             return
-        from experiments.job import record_crash  # noqa: PLC0415 (slow imports)
+        from experiments.sweep.job import record_crash  # noqa: PLC0415 (slow imports)
 
         error = job_return._return_value
         message = f"{type(error).__name__}: {error}" if error is not None else "job failed"
@@ -110,7 +110,7 @@ class SweepCallback(Callback):
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         """Summarise the sweep; exit 1 when a setting failed or a rows file is unreadable."""
         stop_progress()
-        from experiments.collect import summarise_sweep  # noqa: PLC0415 (slow imports)
+        from experiments.summary.collect import summarise_sweep  # noqa: PLC0415 (slow imports)
 
         sweep_dir = Path(config.hydra.sweep.dir)
         problems = []
@@ -127,7 +127,7 @@ class SweepCallback(Callback):
             problems.append(f"stored rows unreadable: {exc}")
         except KeyboardInterrupt:  # Ctrl-C during the summary: every setting is done
             print(f"interrupted during the summary: every setting is done; `python -m "
-                  f"experiments.collect {sweep_dir}` summarises them", file=sys.stderr)  # fmt: skip
+                  f"experiments.summary.collect {sweep_dir}` summarises them", file=sys.stderr)  # fmt: skip
             sys.exit(INTERRUPTED_STATUS)
         if (failed := outcomes.count("failed")) > 0:
             problems.append(f"{failed} setting(s) failed (listed above); a re-run retries them")

@@ -14,9 +14,8 @@ import pyarrow as pa
 
 from experiments import store
 from experiments.data.first_run import fail
-from experiments.heap import long_lived, release_freed_memory
-from experiments.provenance import code_version
-from experiments.recordings import report_kind
+from experiments.host.heap import long_lived, release_freed_memory
+from experiments.host.provenance import code_version
 from experiments.report import (
     drives_report,
     fp5,
@@ -36,6 +35,7 @@ from experiments.report.load import (
     make_context,
     reference_for,
 )
+from experiments.summary.recordings import report_kind
 from ttc import evaluation as ev
 from ttc.features.model_files import ModelFileError
 

@@ -1,4 +1,4 @@
-"""The end-of-sweep summary's lead rows, kept per fragment (:mod:`experiments.kept_tables`).
+"""The end-of-sweep summary's lead rows, kept per fragment (:mod:`experiments.summary.kept_tables`).
 
 The summary ranks every run of a sweep on its lead rows (:func:`ttc.evaluation.lead_rows`:
 one row per run × frame pair). A fragment's lead rows are computed once, by the first summary
@@ -22,9 +22,9 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from experiments import kept_tables as kt
-from experiments.kept_tables import CACHE_DIR, FRAGMENT
 from experiments.store.dataset import Fragment, fragments, iter_tables, unified_schema
+from experiments.summary import kept_tables as kt
+from experiments.summary.kept_tables import CACHE_DIR, FRAGMENT
 from ttc.atomic import write_bytes_atomic
 
 #: Kind (file name prefix) of the kept lead rows.
@@ -120,7 +120,7 @@ def fragment_key(frag: Fragment, key: str) -> str:
 
 class LeadRows:
     """The lead rows of a sweep's live fragments, each fragment's kept
-    (:mod:`experiments.kept_tables`): those not kept yet are computed and kept as this is made
+    (:mod:`experiments.summary.kept_tables`): those not kept yet are computed and kept as this is made
     (a fragment at a time: a run's rows are in one fragment), all of them read on demand.
     ``records``: the sweep's :func:`experiments.store.list_records`, when already read.
     :class:`experiments.store.StoreError` names a corrupt fragment."""
@@ -176,7 +176,7 @@ class LeadRows:
 
     def table(self, keys: list[str] | None = None, columns: list[str] | None = None) -> pa.Table:
         """The kept lead rows of fragments ``keys`` (None: all), in the dataset's order, with
-        :data:`~experiments.kept_tables.FRAGMENT`; ``columns``: only these (and it)."""
+        :data:`~experiments.summary.kept_tables.FRAGMENT`; ``columns``: only these (and it)."""
         keys = self.keys if keys is None else keys
         tables, found = [], set()
         for held, fresh in self._fresh:  # columns taken first: a filter copies each one
@@ -200,7 +200,7 @@ class LeadRows:
     def frame(
         self, keys: list[str] | None = None, columns: list[str] | None = None
     ) -> pd.DataFrame:
-        """:meth:`table` without :data:`~experiments.kept_tables.FRAGMENT`, as pandas (all
+        """:meth:`table` without :data:`~experiments.summary.kept_tables.FRAGMENT`, as pandas (all
         rows and columns: read once)."""
         if not self.keys:
             return pd.DataFrame()

@@ -12,8 +12,8 @@ from typing import Any
 
 import pandas as pd
 
-from experiments.config import axis_values, setting_hash
-from experiments.provenance import code_version, machine, package_versions
+from experiments.configs.structured import axis_values, setting_hash
+from experiments.host.provenance import code_version, machine, package_versions
 from ttc.settings import AXES
 
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m experiments.collect sweeps/fp6_grid_kitti_0_18
+    python -m experiments.summary.collect sweeps/fp6_grid_kitti_0_18
 """
 
 from __future__ import annotations
@@ -12,12 +12,13 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments import progress, store
-from experiments.heap import long_lived
-from experiments.lead_cache import LeadRows
-from experiments.paths import shown
-from experiments.ranking_cache import kept_run_metrics
-from experiments.sweep.finished import nothing_computed_line, summary_head
+from experiments import store
+from experiments.host.heap import long_lived
+from experiments.host.paths import shown
+from experiments.store import progress
+from experiments.summary.head import nothing_computed_line, summary_head
+from experiments.summary.lead_rows import LeadRows
+from experiments.summary.run_metrics import kept_run_metrics
 from ttc.atomic import remove_stale_temporaries
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
@@ -77,9 +78,9 @@ def sweep_references(
     frames: pd.DataFrame, runs: pd.DataFrame, data_dir: Path | None, cache_dir: Path | None
 ) -> dict[str, pd.DataFrame] | None:
     """What the ok runs of each recording are judged against
-    (:func:`experiments.reference_store.recording_references`), or None (with the reason
+    (:func:`experiments.summary.references.recording_references`), or None (with the reason
     printed) when it cannot be built, e.g. the data root is gone."""
-    from experiments.reference_store import recording_references  # noqa: PLC0415 (SciPy)
+    from experiments.summary.references import recording_references  # noqa: PLC0415 (SciPy)
     from ttc.engine.cache import StageCache  # noqa: PLC0415
 
     cache = StageCache(cache_dir) if cache_dir else None
@@ -98,7 +99,7 @@ def pooled_runs(
     no bootstrap intervals: the report's ``drives.md`` has them); ``run_id`` is the setting
     id shared by its runs on every recording."""
     from experiments.data.datasets import recording_id  # noqa: PLC0415
-    from experiments.recordings import runs_drive_rankings  # noqa: PLC0415
+    from experiments.summary.recordings import runs_drive_rankings  # noqa: PLC0415
     from ttc import evaluation as ev  # noqa: PLC0415
 
     named = {recording_id(sequence): ref for sequence, ref in references.items()}
@@ -125,7 +126,7 @@ def summarise_sweep(
     are removed. Only the lead rows are read (the ranking's rows), so a sweep of millions of
     rows is summarised without loading it whole; each fragment's lead rows and, on a real
     drive, its runs' metrics are kept by the first summary that reads it
-    (:mod:`experiments.lead_cache`, :mod:`experiments.ranking_cache`), so a later summary
+    (:mod:`experiments.summary.lead_rows`, :mod:`experiments.summary.run_metrics`), so a later summary
     judges only the new runs. ``unchanged=True`` (nothing was computed): counts only, no
     ranking (it would be the one printed before)."""
     sweep_dir = Path(sweep_dir)
@@ -172,7 +173,7 @@ def summarise_sweep(
 
 def report_contents(frames: pd.DataFrame, runs: pd.DataFrame) -> str:
     """What ``experiments.report`` writes for this sweep, in a few words."""
-    from experiments.recordings import REPORT_CONTENTS, report_kind  # noqa: PLC0415
+    from experiments.summary.recordings import REPORT_CONTENTS, report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
     fused = ", FP.7 fused TTC" if not fused_runs(runs[runs["status"] == "ok"]).empty else ""
@@ -186,7 +187,7 @@ def _may_carry_truth(lead: LeadRows) -> bool:
 
 
 def _truth_rows(lead: LeadRows) -> pd.DataFrame:
-    """What :func:`experiments.recordings.report_kind` and the references read of the lead
+    """What :func:`experiments.summary.recordings.report_kind` and the references read of the lead
     rows to tell a generated recording (a truth): every column when the sweep's rows carry
     one, else none (an empty ``run_id`` column: all they need of a real drive's rows is that
     they carry no truth, which the schema says; reading a ``grand`` re-run's 640,000 run ids
@@ -200,7 +201,7 @@ def _ranked(
     lead: LeadRows, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
 ) -> pd.DataFrame:
     """The runs ranked on ``sensor``: against a real drive's reference from each fragment's
-    kept metrics (:mod:`experiments.ranking_cache`), else from the rows (:func:`_unkept`)."""
+    kept metrics (:mod:`experiments.summary.run_metrics`), else from the rows (:func:`_unkept`)."""
     if len(references) > 1 or _may_carry_truth(lead):
         return _unkept(lead.frame(), runs, references, sensor)
     return _ranking(kept_run_metrics(lead, next(iter(references.values()))), sensor)
@@ -213,7 +214,7 @@ def _best(
     reference (pooled over the recordings of a sweep over several), none when no reference
     can be built; when the sweep is ranked on another sensor and holds runs with a fusion,
     also those runs ranked on the fused TTC. ``frames``: :func:`_truth_rows` of ``lead``."""
-    from experiments.recordings import report_kind  # noqa: PLC0415
+    from experiments.summary.recordings import report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
     references = sweep_references(frames, runs, data_dir, cache_dir)

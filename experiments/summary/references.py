@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 
 from experiments.data.datasets import recording_id
-from experiments.paths import default_cache_dir, default_data_root
-from experiments.recordings import recording_of, recording_source_of, run_ids_by_recording
+from experiments.host.paths import default_cache_dir, default_data_root
+from experiments.summary.recordings import recording_of, recording_source_of, run_ids_by_recording
 from ttc import evaluation as ev
 from ttc.engine.cache import StageCache, Task, cache_key
 from ttc.engine.stages import FrameStages

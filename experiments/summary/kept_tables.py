@@ -1,7 +1,7 @@
 """Tables the end-of-sweep summary keeps per fragment of the store, in ``<sweep>/.summary/``.
 
 A fragment of the append-only store never changes, so what the summary derives from it (its
-lead rows: :mod:`experiments.lead_cache`; its runs' metrics: :mod:`experiments.ranking_cache`)
+lead rows: :mod:`experiments.summary.lead_rows`; its runs' metrics: :mod:`experiments.summary.run_metrics`)
 is computed once and kept under a key of everything it depends on. The tables a summary
 computes go into **one** kept file per kind (a :data:`FRAGMENT` column names each row's key;
 the file's metadata lists its keys), not one per fragment: a later summary reads a few files,

@@ -1,0 +1,17 @@
+"""The end-of-sweep summary and every table derived from a sweep's stored rows.
+
+One entry point: :func:`experiments.summary.collect.summarise_sweep` (``ttc-bench collect``,
+and a sweep's end through :mod:`experiments.sweep.callbacks`). What it keeps, and where:
+
+* ``<sweep>/.summary/<kind>-<digest>.parquet``: tables kept per fragment of the append-only
+  store, named one way (:mod:`.kept_tables`): ``lead`` (each fragment's lead rows,
+  :mod:`.lead_rows`) and ``metrics`` (each fragment's runs' metrics, :mod:`.run_metrics`);
+* the stage cache (``$TTC_CACHE_DIR``): a recording's reference TTC and every object's boxes
+  and reference (:mod:`.references`), keyed by the recording's inputs;
+* nothing else: which recording a run is on and which report a sweep gets are derived from
+  the run records each time (:mod:`.recordings`).
+
+Deleting ``.summary/`` is always safe. The report (:mod:`experiments.report`) reads the same
+tables; the sweep (:mod:`experiments.sweep`) calls the summary when it ends. Imports
+:mod:`experiments.store` and the layers below it only.
+"""
