@@ -1,7 +1,7 @@
 """Per-frame errors of every estimate against the reference, and the time a frame cost.
 
 Input is a sweep's ``frames`` table (one row per run × frame pair × box pair, see
-``experiments/tools/schema.py``) and a reference from :func:`ttc.evaluation.reference.reference_ttc`
+``experiments/store/schema.py``) and a reference from :func:`ttc.evaluation.reference.reference_ttc`
 (one row per frame pair, labelled at its current frame). Only the lead vehicle's row of each
 frame pair is judged; a frame pair of a run without a lead row (no box held lane points)
 counts as an invalid estimate of both sensors.
