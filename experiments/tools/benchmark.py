@@ -6,6 +6,8 @@ Usage::
     python -m experiments.tools.benchmark                 # every figure (long: see --parts)
     python -m experiments.tools.benchmark --parts fp6,small --skip-nocache
     python -m experiments.tools.benchmark --reduced       # CI: 2 detectors x 2 descriptors, 0-5
+    # the report of the grand sweep made before in W, today's code against commit X's:
+    python -m experiments.tools.benchmark --workdir W --parts grand_report --before X --rounds 3
 
 Figures (all wall-clock seconds on this machine, written to a JSON report):
 
@@ -40,16 +42,37 @@ Figures (all wall-clock seconds on this machine, written to a JSON report):
   ``grand_main_peak_rss_mb``: the main process alone;
   ``grand_warm_breakdown`` / ``grand_warm_fixed_s``: that re-run goes into the cold sweep's
   folder, as a user's changed command does; its split before the first job and after the last;
-  ``grand_report_s`` / ``grand_report_peak_rss_mb``: ``python -m experiments.report`` of that
-  folder (both sweeps' settings), wall and peak resident memory (the process and its children);
+  ``grand_report_s`` / ``grand_report_peak_rss_mb`` / ``grand_report_peak_pss_mb``:
+  ``python -m experiments.report`` of that folder (both sweeps' settings), wall and peak
+  resident / proportional memory (the process and its children;
+  :mod:`experiments.tools.report_timing`);
 * ``grand_long_cold_s``, ``grand_long_peak_pss_mb``, ``grand_long_report_s``,
-  ``grand_long_report_peak_rss_mb``: ``grand`` on frames 0-77 (≈ 4× the rows of 0-18) with an
-  empty cache, then its report (part ``grand_long``);
+  ``grand_long_report_peak_rss_mb``, ``grand_long_report_peak_pss_mb``: ``grand`` on frames
+  0-77 (≈ 4× the rows of 0-18) with an empty cache, then its report (part ``grand_long``);
 * ``long_cold_s``: ``fp6_grid`` on frames 0-77 with an empty cache;
 * ``peak_rss_mb``: the largest peak resident memory of one job's worker process.
 
-``--parts`` picks the groups (``fp6``, ``small``, ``grand``, ``grand_long``, ``long``); a figure of a group
-not run is absent from the report and listed under ``missing``.
+``--parts`` picks the groups (``fp6``, ``small``, ``grand``, ``grand_long``, ``long``, and the
+report-only ``grand_report``, ``grand_long_report``); a figure of a group not run is absent from
+the report and listed under ``missing``. ``grand_report`` / ``grand_long_report`` make no sweep:
+they time the report figures of ``<workdir>/sweeps/grand`` / ``grand_long`` made before by
+``grand`` / ``grand_long`` with the same ``--workdir`` (the grand cold sweep takes minutes; a
+report-only re-measure takes the reports' time). Give either a part or its report-only part.
+
+``--before <commit>``: the report figures (parts ``grand``, ``grand_long`` and their report-only
+parts) are also measured for the code at that commit, on the same sweep folder, in the same run
+(:func:`~experiments.tools.report_timing.report_figures`: a ``git clone --shared --no-checkout``
+of this repository in the workdir checked out at the commit, its report run from there with
+``PYTHONPATH`` on it; one untimed report by each code, then ``--rounds`` times before, today's,
+alternating, the figures the medians): ``grand_report_before_s``,
+``grand_report_before_peak_rss_mb``, ``grand_report_before_peak_pss_mb`` (and the
+``grand_long_report_before_*`` ones), the ratios today / before ``grand_report_over_before``
+(wall) and ``grand_report_peak_pss_over_before``, every round under ``grand_report_rounds``.
+
+The targets (:data:`TARGETS`, each ``<figure>_max``; ``meets`` says which a report meets) include
+issue 51's: the report of ``grand`` within 10 s and 1 GB proportional memory, that of
+``grand_long`` within 1.5 GB, the served ``grand`` re-run within 6 s and the cold ``fp6_grid``
+within 1.15× its unique compute floor.
 """
 
 from __future__ import annotations
@@ -66,7 +89,8 @@ from experiments.data.first_run import ensure_model_files
 from experiments.host.paths import base_dir, default_data_root
 from experiments.host.provenance import code_version, machine, package_versions
 from experiments.tools.floor import compute_floor, hydra_compose_seconds, steps_floor_ms
-from experiments.tools.timed import sweep_breakdown, timed_report, timed_sweep
+from experiments.tools.report_timing import clone_at, existing_sweep, report_figures
+from experiments.tools.timed import sweep_breakdown, timed_sweep
 from ttc.features.descriptors import RUBRIC_DESCRIPTORS
 from ttc.features.keypoints import RUBRIC_DETECTORS
 
@@ -81,9 +105,11 @@ TARGETS = {
     "rerun_s_max": 3.0,
     "small_rerun_s_max": 2.0,
     "grand_cold_s_max": 600.0,
-    "grand_warm_s_max": 10.0,
+    "grand_warm_s_max": 6.0,
     "grand_peak_pss_mb_max": 2048.0,
-    "grand_report_s_max": 20.0,
+    "grand_report_s_max": 10.0,
+    "grand_report_peak_pss_mb_max": 1024.0,
+    "grand_long_report_peak_pss_mb_max": 1536.0,
     "grand_report_peak_rss_mb_max": 1536.0,
     "grand_long_report_peak_rss_mb_max": 1536.0,
 }
@@ -93,15 +119,20 @@ SMALL = ["-m", "detector=fast,akaze", "descriptor=brief,akaze", "matcher=bf,flan
 GRAND = ["+experiment=grand", "dataset.last=18"]
 GRAND_WARM = [*GRAND, "keypoint_filter=zscore", "keypoint_filter.z=2.5"]
 GRAND_LONG = ["+experiment=grand", "dataset.last=77"]
-PARTS = ("fp6", "small", "grand", "grand_long", "long")
+PARTS = ("fp6", "small", "grand", "grand_long", "long", "grand_report", "grand_long_report")
+#: The parts of a run without ``--parts`` (the report-only ones re-measure what these make).
+SWEEP_PARTS = PARTS[:5]
 #: Every figure of a full run (``missing`` lists those a report lacks).
 FIGURES = ("cold_s", "floor_unique_s", "cold_over_floor_unique", "floor_engine_s",
            "cold_over_floor_engine", "cold_fixed_s", "warm_filter_fixed_s", "warm_filter_s",
            "warm_filter_lead_in_s", "warm_filter_local_s", "rerun_s",
            "nocache_s", "small_cold_s", "small_rerun_s", "grand_cold_s", "grand_warm_s",
            "grand_warm_fixed_s", "grand_peak_rss_mb", "grand_peak_pss_mb", "grand_report_s",
-           "grand_report_peak_rss_mb", "grand_long_cold_s", "grand_long_report_s",
-           "grand_long_report_peak_rss_mb", "long_cold_s")  # fmt: skip
+           "grand_report_peak_rss_mb", "grand_report_peak_pss_mb", "grand_long_cold_s",
+           "grand_long_report_s", "grand_long_report_peak_rss_mb",
+           "grand_long_report_peak_pss_mb", "long_cold_s")  # fmt: skip
+#: A comparison run (``--before``): the code at the earlier commit, how many rounds.
+Before = tuple[Path | None, int]
 
 
 def sweep_args(grid: dict[str, Any], name: str) -> list[str]:
@@ -167,9 +198,9 @@ def small_figures(workdir: Path) -> dict[str, Any]:
     return {"small_cold_s": cold, "small_rerun_s": rerun, "small_settings": len(runs)}
 
 
-def grand_figures(workdir: Path, cores: int) -> dict[str, Any]:
+def grand_figures(workdir: Path, cores: int, before: Before = (None, 1)) -> dict[str, Any]:
     """``grand`` on frames 0-18 cold (own empty cache), then one downstream axis changed into
-    the same folder, then the report of that folder."""
+    the same folder (served), then :func:`grand_report_figures`."""
     cache, results = workdir / "grand-cache", workdir / "sweeps"
     memory: dict[str, float] = {}
     cold, runs = timed_sweep([*GRAND, "sweep_name=grand"], results, cache, memory)
@@ -186,27 +217,35 @@ def grand_figures(workdir: Path, cores: int) -> dict[str, Any]:
                   grand_warm_breakdown=split)  # fmt: skip
     if {"lead_in_s", "tail_s"} <= split.keys():
         report["grand_warm_fixed_s"] = split["lead_in_s"] + split["tail_s"]
-    memory = {}
-    report["grand_report_s"] = timed_report(results / "grand", workdir / "grand-report", cache,
-                                            memory)  # fmt: skip
-    report["grand_report_peak_rss_mb"] = memory["rss"]
-    report["grand_frames_rows"] = store.row_count(store.list_records(results / "grand"))
+    return {**report, **grand_report_figures(workdir, before)}
+
+
+def grand_report_figures(workdir: Path, before: Before = (None, 1)) -> dict[str, Any]:
+    """The report figures of ``<workdir>/sweeps/grand`` (:func:`report_figures`) and its rows."""
+    sweep = existing_sweep(workdir / "sweeps" / "grand")
+    report = report_figures("grand", sweep, workdir / "grand-report", workdir / "grand-cache",
+                            *before)  # fmt: skip
+    report["grand_frames_rows"] = store.row_count(store.list_records(sweep))
     return report
 
 
-def grand_long_figures(workdir: Path) -> dict[str, Any]:
-    """``grand`` on frames 0-77 cold (own empty cache), then its report."""
+def grand_long_figures(workdir: Path, before: Before = (None, 1)) -> dict[str, Any]:
+    """``grand`` on frames 0-77 cold (own empty cache), then :func:`grand_long_report_figures`."""
     cache, results = workdir / "grand-long-cache", workdir / "sweeps"
     memory: dict[str, float] = {}
     cold, runs = timed_sweep([*GRAND_LONG, "sweep_name=grand_long"], results, cache, memory)
     report: dict[str, Any] = {"grand_long_cold_s": cold, "grand_long_peak_pss_mb": memory["pss"],
                               "grand_long_settings": len(runs),
                               "grand_long_status": runs["status"].value_counts().to_dict()}  # fmt: skip
-    memory = {}
-    report["grand_long_report_s"] = timed_report(results / "grand_long",
-                                                 workdir / "grand-long-report", cache, memory)  # fmt: skip
-    report["grand_long_report_peak_rss_mb"] = memory["rss"]
-    report["grand_long_rows"] = store.row_count(store.list_records(results / "grand_long"))
+    return {**report, **grand_long_report_figures(workdir, before)}
+
+
+def grand_long_report_figures(workdir: Path, before: Before = (None, 1)) -> dict[str, Any]:
+    """The report figures of ``<workdir>/sweeps/grand_long`` and its rows."""
+    sweep = existing_sweep(workdir / "sweeps" / "grand_long")
+    report = report_figures("grand_long", sweep, workdir / "grand-long-report",
+                            workdir / "grand-long-cache", *before)  # fmt: skip
+    report["grand_long_rows"] = store.row_count(store.list_records(sweep))
     return report
 
 
@@ -223,17 +262,26 @@ def run_benchmark(
     skip_nocache: bool = False,
     parts: tuple[str, ...] = ("fp6", "small"),
     save: Any = None,
+    before: str | None = None,
+    rounds: int = 1,
 ) -> dict[str, Any]:
     """The figures of ``parts`` (see the module docstring) and their targets; ``save(report)``
-    is called after each part (a long benchmark stopped midway keeps what it measured)."""
+    is called after each part (a long benchmark stopped midway keeps what it measured).
+    ``before``: a commit whose report is timed beside today's, ``rounds`` times each."""
     cores = os.cpu_count() or 1
-    report: dict[str, Any] = {"cores": cores, "parts": list(parts)}
+    report: dict[str, Any] = {"cores": cores, "parts": list(parts), "report_rounds": rounds}
+    code = None
+    if before is not None and {"grand", "grand_long", *PARTS[5:]} & set(parts):
+        code, report["before_commit"] = clone_at(before, workdir)
+    compare: Before = (code, rounds)
     figures = {
         "fp6": lambda: fp6_figures(grid, workdir, cores, skip_nocache),
         "small": lambda: small_figures(workdir),
-        "grand": lambda: grand_figures(workdir, cores),
-        "grand_long": lambda: grand_long_figures(workdir),
+        "grand": lambda: grand_figures(workdir, cores, compare),
+        "grand_long": lambda: grand_long_figures(workdir, compare),
         "long": lambda: long_figures(workdir),
+        "grand_report": lambda: grand_report_figures(workdir, compare),
+        "grand_long_report": lambda: grand_long_report_figures(workdir, compare),
     }
     for part in PARTS:
         if part in parts:
@@ -248,43 +296,49 @@ def run_benchmark(
 def _judged(report: dict[str, Any]) -> dict[str, Any]:
     """``report`` with its targets, which it meets and which figures it lacks."""
     report["targets"] = TARGETS
-    checks = {
-        "cold_over_floor_unique": ("cold_over_floor_unique", "cold_over_floor_unique_max"),
-        "cold_over_floor_engine": ("cold_over_floor_engine", "cold_over_floor_engine_max"),
-        "warm_filter_fixed_s": ("warm_filter_fixed_s", "warm_filter_fixed_s_max"),
-        "warm_filter_lead_in_s": ("warm_filter_lead_in_s", "warm_filter_lead_in_s_max"),
-        "warm_filter_s": ("warm_filter_s", "warm_filter_s_max"),
-        "rerun_s": ("rerun_s", "rerun_s_max"),
-        "small_rerun_s": ("small_rerun_s", "small_rerun_s_max"),
-        "grand_cold_s": ("grand_cold_s", "grand_cold_s_max"),
-        "grand_warm_s": ("grand_warm_s", "grand_warm_s_max"),
-        "grand_peak_pss_mb": ("grand_peak_pss_mb", "grand_peak_pss_mb_max"),
-        "grand_report_s": ("grand_report_s", "grand_report_s_max"),
-        "grand_report_peak_rss_mb": ("grand_report_peak_rss_mb", "grand_report_peak_rss_mb_max"),
-        "grand_long_report_peak_rss_mb": (
-            "grand_long_report_peak_rss_mb",
-            "grand_long_report_peak_rss_mb_max",
-        ),
+    figures = {target.removesuffix("_max"): target for target in TARGETS}
+    report["meets"] = {
+        figure: report[figure] <= TARGETS[target]
+        for figure, target in figures.items()
+        if figure in report
     }
-    report["meets"] = {k: report[v] <= TARGETS[t] for k, (v, t) in checks.items() if v in report}
     report["missing"] = [k for k in FIGURES if k not in report]
     return report
+
+
+def parse_parts(
+    parser: argparse.ArgumentParser, text: str | None, reduced: bool, workdir: Path | None
+) -> tuple[str, ...]:
+    """The parts of ``--parts`` (comma-separated; default: all sweep parts, ``--reduced``:
+    ``fp6,small``); unknown ones, a part with its report-only part, or a report-only part
+    without ``--workdir`` are the ``parser``'s errors."""
+    default = ("fp6", "small") if reduced else SWEEP_PARTS
+    parts = tuple(text.split(",")) if text else default
+    if unknown := set(parts) - set(PARTS):
+        parser.error(f"unknown parts {sorted(unknown)}; known: {PARTS}")
+    for part in ("grand", "grand_long"):
+        if {part, f"{part}_report"} <= set(parts):
+            parser.error(f"{part} times its reports already: give {part} or {part}_report")
+    if workdir is None and {"grand_report", "grand_long_report"} & set(parts):
+        parser.error("the report-only parts need --workdir (where their sweeps were made)")
+    return parts
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reduced", action="store_true", help="small grid for CI")
     parser.add_argument("--skip-nocache", action="store_true", help="skip the cache-off sweep")
-    parser.add_argument("--parts", help=f"comma-separated groups of {PARTS} (default: all; "
-                        "--reduced: fp6,small)")  # fmt: skip
+    parser.add_argument("--parts", help=f"comma-separated groups of {PARTS} (default: "
+                        f"{','.join(SWEEP_PARTS)}; --reduced: fp6,small)")  # fmt: skip
     parser.add_argument("--out", type=Path, help="JSON report path")
     parser.add_argument("--workdir", type=Path, help="cache + sweeps folder (default: temp)")
+    parser.add_argument("--before", metavar="COMMIT", help="also time the reports by the code "
+                        "at COMMIT, alternating with today's")  # fmt: skip
+    parser.add_argument("--rounds", type=int, default=1, help="reports timed per code and folder "
+                        "(default 1; the figures are the medians)")  # fmt: skip
     args = parser.parse_args(argv)
     grid = REDUCED if args.reduced else FULL
-    default_parts = ("fp6", "small") if args.reduced else PARTS
-    parts = tuple(args.parts.split(",")) if args.parts else default_parts
-    if unknown := set(parts) - set(PARTS):
-        parser.error(f"unknown parts {sorted(unknown)}; known: {PARTS}")
+    parts = parse_parts(parser, args.parts, args.reduced, args.workdir)
     out = args.out or base_dir() / "results" / "benchmark" / (
         "sweep_reduced.json" if args.reduced else "sweep_fp6_grid.json"
     )
@@ -302,7 +356,8 @@ def main(argv: list[str] | None = None) -> None:
     ensure_model_files()  # the floor runs the detector in this process (and the sweeps inherit it)
     with tempfile.TemporaryDirectory(prefix="ttc-bench-") as tmp:
         workdir = args.workdir or Path(tmp)
-        report = run_benchmark(grid, workdir, args.skip_nocache, parts, save)
+        report = run_benchmark(grid, workdir, args.skip_nocache, parts, save, args.before,
+                               args.rounds)  # fmt: skip
     save(report)
     keys = ("settings", "cold_s", "floor_s", "floor_unique_s", "floor_engine_s", "cold_over_floor",
             "cold_over_floor_unique", "cold_over_floor_engine", "cold_fixed_s",
@@ -310,7 +365,12 @@ def main(argv: list[str] | None = None) -> None:
             "rerun_s", "small_cold_s", "small_rerun_s", "grand_cold_s", "grand_warm_s",
             "grand_warm_fixed_s", "grand_peak_rss_mb", "grand_peak_pss_mb",
             "grand_main_peak_rss_mb", "grand_report_s", "grand_report_peak_rss_mb",
-            "grand_long_cold_s", "grand_long_report_s", "grand_long_report_peak_rss_mb",
+            "grand_report_peak_pss_mb", "grand_report_before_s",
+            "grand_report_before_peak_pss_mb", "grand_report_over_before",
+            "grand_report_peak_pss_over_before", "grand_long_cold_s", "grand_long_report_s",
+            "grand_long_report_peak_rss_mb", "grand_long_report_peak_pss_mb",
+            "grand_long_report_before_s", "grand_long_report_before_peak_pss_mb",
+            "grand_long_report_over_before", "grand_long_report_peak_pss_over_before",
             "long_cold_s", "peak_rss_mb")  # fmt: skip
     for key in keys:
         if key in report:

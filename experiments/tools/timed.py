@@ -1,6 +1,8 @@
 """Whole commands timed for the sweep benchmark (:mod:`experiments.tools.benchmark`): a sweep
 or a report run through the real command line, its wall time, the peak memory of its processes
-and where a sweep's time went (before its first job, its jobs, after its last)."""
+(resident ``rss`` and proportional ``pss``, summed over the process tree) and where a sweep's
+time went (before its first job, its jobs, after its last). A report can be run by the code of
+another checkout (:func:`timed_report`'s ``code``: the benchmark's before / after comparison)."""
 
 from __future__ import annotations
 
@@ -16,17 +18,17 @@ from pathlib import Path
 import pandas as pd
 
 from experiments import store
-from experiments.host.paths import base_dir
+from experiments.host.paths import base_dir, default_data_root
 
 
 def _timed_command(
-    args: list[str], env: dict[str, str], memory: dict | None
+    args: list[str], env: dict[str, str], memory: dict | None, cwd: Path | None = None
 ) -> tuple[float, subprocess.CompletedProcess]:
-    """Run ``python <args>`` from the project folder; (wall seconds, its completed process).
-    ``memory``, when given, receives the peaks of :func:`_sample_memory` (MB), sampled every
-    0.5 s."""
+    """Run ``python <args>`` from ``cwd`` (default: the project folder); (wall seconds, its
+    completed process). ``memory``, when given, receives the peaks of :func:`_sample_memory`
+    (MB: ``rss``, ``pss``, ``main_rss``), sampled every 0.5 s."""
     start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, *args], cwd=base_dir(), env=env,
+    proc = subprocess.Popen([sys.executable, *args], cwd=cwd or base_dir(), env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     peaks: dict[str, float] = {}
     if memory is not None:
@@ -98,21 +100,23 @@ def timed_sweep(
     return wall, runs
 
 
-def timed_report(sweep_dir: Path, out: Path, cache: Path, memory: dict | None = None) -> float:
-    """Wall seconds of ``python -m experiments.report`` on a sweep (pictures and HTML);
-    ``memory``: as :func:`_timed_command`'s."""
-    args = [
-        "-m",
-        "experiments.report",
-        str(sweep_dir),
-        "--out",
-        str(out),
-        "--cache-dir",
-        str(cache),
-    ]
-    wall, proc = _timed_command(args, dict(os.environ), memory)
+def timed_report(
+    sweep_dir: Path, out: Path, cache: Path, memory: dict | None = None, code: Path | None = None
+) -> float:
+    """Wall seconds of ``python -m experiments.report`` on a sweep (pictures and HTML) into
+    ``out``; ``memory``: as :func:`_timed_command`'s. ``code``: a checkout of this repository
+    (another commit's) whose report runs instead, from that folder with ``PYTHONPATH`` on it
+    (as ``tests/test_same_outputs.py`` runs the code before a change); both read the data of
+    :func:`~experiments.host.paths.default_data_root`."""
+    args = ["-m", "experiments.report", str(sweep_dir), "--out", str(out),
+            "--cache-dir", str(cache)]  # fmt: skip
+    env = {**os.environ, "TTC_DATA_DIR": str(default_data_root()), "TTC_CACHE_DIR": str(cache)}
+    if code is not None:
+        env["PYTHONPATH"] = str(code)
+    wall, proc = _timed_command(args, env, memory, cwd=code)
     if proc.returncode != 0:
-        raise RuntimeError(f"report of {sweep_dir} failed:\n{proc.stderr[-4000:]}")
+        raise RuntimeError(f"report of {sweep_dir} ({code or 'this code'}) failed:\n"
+                           f"{proc.stderr[-4000:]}")  # fmt: skip
     return wall
 
 
