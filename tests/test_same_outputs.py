@@ -32,8 +32,8 @@ SWEEP = ["-m", "detector=fast,orb", "descriptor=brief,brisk", "lidar_ttc=median,
 #: Record fields that name the run itself, not its result: times, memory, code version, and
 #: the rows file's name and checksum (its rows hold the times).
 OWN_FIELDS = re.compile(r"^(start|end|.*_s|.*_mb|ms_.*|git_.*|machine|hostname|pid|rows_.*)$")
-#: Row columns that are times (ms a stage took).
-TIMES = re.compile(r"^ms_")
+#: Row columns that name the run itself: the times a stage took, the code version.
+TIMES = re.compile(r"^(ms_|git_)")
 #: Report lines that name the report's own run (code version, date, machine, packages).
 PROVENANCE = re.compile(
     r"(code version|report date|machine|package versions|commit|generated|\d{4}-\d\d-\d\dT?)"

@@ -18,6 +18,7 @@ from experiments.host.heap import long_lived, release_freed_memory
 from experiments.host.provenance import code_version
 from experiments.report import (
     drives_report,
+    forked,
     fp5,
     fp6,
     fp7,
@@ -111,9 +112,13 @@ def build_report(
         lap("reference")
         written = write_sweep_metrics(data, reference)
         lap("metrics")
+        has_rows = not data.frames.empty
+        # the every-object report in a second process meanwhile (its own files)
+        objects_step = forked.start(
+            lambda: objects_by_detector(data, ctx, out) if has_rows else {}, "objects"
+        )
         reference_report.reference_report(data, reference, out)
         lap("reference report")
-        has_rows = not data.frames.empty
         fp5_table = fp5.fp5_report(data, reference, ctx, out, pictures) if has_rows else None
         lap("fp5")
         fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
@@ -121,9 +126,9 @@ def build_report(
         lap("fp6")
         fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
         lap("fp7")
-        by_detector = objects_by_detector(data, ctx, out) if has_rows else {}
+        by_detector = objects_step.result()
         objects = next(iter(by_detector.values()), None)  # the detector most runs use
-        lap("objects")
+        lap("objects (waited for)")
         index = (
             html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables,
                         objects_ranking=objects) if html else None
