@@ -17,8 +17,8 @@ from experiments.host.heap import long_lived
 from experiments.host.paths import shown
 from experiments.store import progress
 from experiments.summary.head import nothing_computed_line, summary_head
+from experiments.summary.kept_ranking import kept_ranking
 from experiments.summary.lead_rows import LeadRows
-from experiments.summary.run_metrics import kept_run_metrics
 from ttc.atomic import remove_stale_temporaries
 from ttc.settings import SETTING_AXES, only_sensor_axes
 
@@ -127,8 +127,11 @@ def summarise_sweep(
     rows is summarised without loading it whole; each fragment's lead rows and, on a real
     drive, its runs' metrics are kept by the first summary that reads it
     (:mod:`experiments.summary.lead_rows`, :mod:`experiments.summary.run_metrics`), so a later summary
-    judges only the new runs. ``unchanged=True`` (nothing was computed): counts only, no
-    ranking (it would be the one printed before)."""
+    judges only the new runs; the ranking keys are kept too
+    (:mod:`experiments.summary.kept_ranking`): only the ``top`` best runs' metrics are read.
+    Returns the first table printed, in full (of a sweep on one real recording: its ``top``
+    rows). ``unchanged=True`` (nothing was computed): counts only, no ranking (it would be the
+    one printed before)."""
     sweep_dir = Path(sweep_dir)
     remove_stale_temporaries(sweep_dir / store.RUNS_DIR)  # left by killed jobs
     with long_lived(collect=False) as keep:
@@ -155,7 +158,7 @@ def summarise_sweep(
             return pd.DataFrame()
         frames = _truth_rows(lead)
         try:
-            tables = _best(lead, frames, runs, data_dir, cache_dir)
+            tables = _best(lead, frames, runs, data_dir, cache_dir, top)
         except Exception as exc:  # the rows stand; the ranking is the report's job
             print(f"\n(no ranking: {type(exc).__name__}: {exc})")
             return pd.DataFrame()
@@ -198,22 +201,29 @@ def _truth_rows(lead: LeadRows) -> pd.DataFrame:
 
 
 def _ranked(
-    lead: LeadRows, runs: pd.DataFrame, references: dict[str, pd.DataFrame], sensor: str
+    lead: LeadRows,
+    runs: pd.DataFrame,
+    references: dict[str, pd.DataFrame],
+    sensor: str,
+    top: int,
 ) -> pd.DataFrame:
-    """The runs ranked on ``sensor``: against a real drive's reference from each fragment's
-    kept metrics (:mod:`experiments.summary.run_metrics`), else from the rows (:func:`_unkept`)."""
+    """The runs ranked on ``sensor``: against a real drive's reference its ``top`` best from
+    the kept ranking (:mod:`experiments.summary.kept_ranking`), else every run from the rows
+    (:func:`_unkept`)."""
     if len(references) > 1 or _may_carry_truth(lead):
         return _unkept(lead.frame(), runs, references, sensor)
-    return _ranking(kept_run_metrics(lead, next(iter(references.values()))), sensor)
+    return _ranking(kept_ranking(lead, next(iter(references.values())), sensor, top)[1], sensor)
 
 
 def _best(
-    lead: LeadRows, frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir
+    lead: LeadRows, frames: pd.DataFrame, runs: pd.DataFrame, data_dir, cache_dir, top: int
 ) -> list[tuple]:
     """[(ranked settings, title)] by :data:`ttc.evaluation.RANKING_RULE`: against the
     reference (pooled over the recordings of a sweep over several), none when no reference
     can be built; when the sweep is ranked on another sensor and holds runs with a fusion,
-    also those runs ranked on the fused TTC. ``frames``: :func:`_truth_rows` of ``lead``."""
+    also those runs ranked on the fused TTC. ``frames``: :func:`_truth_rows` of ``lead``;
+    ``top``: the settings listed (of a sweep on one real recording, the only ones ranked
+    in full: :func:`_ranked`)."""
     from experiments.summary.recordings import report_kind  # noqa: PLC0415
     from ttc.evaluation.fused_diagnosis import fused_runs  # noqa: PLC0415 (SciPy)
 
@@ -228,7 +238,7 @@ def _best(
         "recording": "the reference",
     }[report_kind(frames, runs)]
     rule = "(ttc.evaluation.RANKING_RULE)"
-    tables = [(_ranked(lead, runs, references, sensor),
+    tables = [(_ranked(lead, runs, references, sensor, top),
                f"on the {sensor} TTC against {against} {rule}")]  # fmt: skip
     fused = fused_runs(ok)
     if sensor != "fused" and not fused.empty:  # ms_compute over the fused runs' rows alone

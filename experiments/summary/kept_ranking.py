@@ -1,0 +1,145 @@
+"""The end-of-sweep summary's ranking on one recording, kept (kind ``ranked``).
+
+The summary of a sweep on one real recording prints the best runs of
+:func:`ttc.evaluation.rank_runs` of every run's metrics (:mod:`experiments.summary.run_metrics`).
+The rule reads three keys of a run: its invalid rate and median MiD on the ranked sensor and its
+time (:func:`ttc.evaluation.ranking_time`), then its ``run_id``. So each summary keeps those keys
+of every run with the rank they got (:data:`KIND`, :mod:`experiments.summary.kept_tables`: one
+file, each row under its fragment's kept-metrics key, the sensor and the rule's code), beside
+the digest of the computing times the fragment's runs look up, as the kept metrics are
+(:func:`experiments.summary.run_metrics.stored`). A later summary takes the kept keys of every
+fragment still live whose digest is unchanged, judges only the other fragments' runs (new ones,
+and those whose looked-up times moved: their kept metrics, else computed), ranks the keys of all
+runs together (:func:`merged_ranking`: the rule on a few small columns) and reads the full
+metrics of the best ``top`` runs alone. The ranking is :func:`ttc.evaluation.rank_runs` of every
+run's metrics (test); deleting ``.summary/`` is always safe.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import pandas as pd
+
+from experiments.summary import kept_tables as kt
+from experiments.summary import run_metrics as rm
+from experiments.summary.kept_tables import FRAGMENT
+from experiments.summary.lead_rows import LeadRows
+
+#: Kind (file name prefix) of the kept ranking keys.
+KIND = "ranked"
+#: Column of the kept keys: the rule's time key (ms per frame, :func:`ttc.evaluation.ranking_time`).
+TIME = "ranking_ms"
+
+
+def _code_key(sensor: str) -> str:
+    """Digest of the rule's code and the sensor ranked on."""
+    import ttc  # noqa: PLC0415
+
+    text = (Path(ttc.__file__).parent / "evaluation" / "ranking.py").read_text()
+    return hashlib.sha256(f"{text}|{sensor}".encode()).hexdigest()
+
+
+def key_columns(sensor: str) -> list[str]:
+    """The sort keys of :data:`ttc.evaluation.RANKING_RULE` on ``sensor``, as kept: invalid
+    rate, median MiD, time (:data:`TIME`)."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
+
+    return [*(f"{sensor}_{k}" for k in ev.RANKING_KEYS), TIME]
+
+
+def lookup_axes(metrics: pd.DataFrame) -> list[str]:
+    """The axes of ``metrics`` whose values the computing-time lookups read."""
+    from ttc.evaluation.stage_times import CACHED_STAGE_INPUTS  # noqa: PLC0415
+
+    axes = [a for _, _, inputs in CACHED_STAGE_INPUTS.values() for a in inputs]
+    return [a for a in dict.fromkeys(axes) if a in metrics]
+
+
+def ranking_keys(metrics: pd.DataFrame, sensor: str) -> pd.DataFrame:
+    """(n runs, run_id and :func:`key_columns`) of ``metrics``
+    (:func:`ttc.evaluation.run_metrics`), in their order; float keys, NaN where unknown."""
+    from ttc import evaluation as ev  # noqa: PLC0415
+
+    invalid, mid, _ = key_columns(sensor)
+    return pd.DataFrame({
+        "run_id": metrics["run_id"].to_numpy(),
+        invalid: metrics[invalid].to_numpy(dtype=float),
+        mid: metrics[mid].to_numpy(dtype=float),
+        TIME: ev.ranking_time(metrics).to_numpy(dtype=float),
+    })  # fmt: skip
+
+
+def merged_ranking(kept: pd.DataFrame, new: pd.DataFrame, sensor: str) -> pd.DataFrame:
+    """The runs of ``kept`` (kept keys, any order) and ``new`` (:func:`ranking_keys`; other
+    runs) ranked together by :func:`ttc.evaluation.rank_runs` on their keys alone (the rule's
+    time key as its ``ms_per_frame``), sorted by ``rank``; other columns carried along. A
+    ``grand`` re-run's 33,600 runs: a sort of four small columns."""
+    from ttc import evaluation as ev  # noqa: PLC0415
+
+    parts = [p.drop(columns=["rank"], errors="ignore") for p in (kept, new) if len(p)]
+    table = pd.concat(parts, ignore_index=True) if parts else new.iloc[:0]
+    ranked = ev.rank_runs(table.rename(columns={TIME: "ms_per_frame"}), sensor)
+    return ranked.rename(columns={"ms_per_frame": TIME})
+
+
+def kept_ranking(
+    lead: LeadRows, reference: pd.DataFrame, sensor: str, top: int
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(every run's ranking keys and ``rank`` sorted by it, with :data:`FRAGMENT`; the full
+    metrics of the ``top`` best runs, in rank order): :func:`ttc.evaluation.rank_runs` of
+    :func:`experiments.summary.run_metrics.kept_run_metrics` of ``lead`` against
+    ``reference`` on ``sensor``, from the kept keys where still valid (module docstring)."""
+    known = rm.metric_keys(lead, reference)
+    code = _code_key(sensor)
+    named = {k: hashlib.sha256(f"{k}|{code}".encode()).hexdigest()[:32] for k in known.keys}
+    files = kt.kept_files(lead.sweep_dir, KIND)
+    kept = rm.valid_kept(kt.kept_rows(files, list(named.values()), each_once=False)[0],
+                         known.digests)  # fmt: skip
+    done = set(kept[FRAGMENT]) if len(kept) else set()
+    todo = [k for k, n in named.items() if n not in done]
+    if len(kt.kept_files(lead.sweep_dir, rm.KIND)) > kt.MAX_KEPT_FILES:
+        todo = list(known.keys)  # every run's metrics read: their files put together as one
+    whole = len(todo) == len(known.keys)
+    metrics = pd.DataFrame()
+    if todo:
+        metrics = rm.kept_run_metrics(lead, reference, None if whole else todo, known)
+    fragment_of = {r: named[k] for k in todo for r in lead.runs(known.keys[k])}
+    new = ranking_keys(metrics, sensor) if len(metrics) else pd.DataFrame()
+    if len(new):
+        new[FRAGMENT] = new["run_id"].map(fragment_of)
+        new = new.join(metrics[lookup_axes(metrics)])
+    kept = kept.iloc[:0] if whole or not len(kept) else kept.drop(columns=[rm.LOOKED_UP])
+    if not todo and list(files.values()) == [set(named.values())]:  # the ranking kept
+        ranked = kept.sort_values("rank", ignore_index=True)
+    else:  # the keys of every live run as one file, the others removed
+        ranked = merged_ranking(kept, new, sensor)
+        kt.consolidate(lead.sweep_dir, KIND, rm.stored(ranked, known.digests),
+                       list(named.values()), list(files))  # fmt: skip
+    best = ranked.head(top if top else 1)  # --top 0: the columns of none
+    return ranked, _best_metrics(lead, reference, known, named, best, metrics)
+
+
+def _best_metrics(
+    lead: LeadRows,
+    reference: pd.DataFrame,
+    known: rm.MetricKeys,
+    named: dict[str, str],
+    best: pd.DataFrame,
+    judged: pd.DataFrame,
+) -> pd.DataFrame:
+    """The full metrics of the runs of ``best`` (ranked keys with :data:`FRAGMENT`), in its
+    order: from ``judged`` (the metrics this summary read or computed) where there, else read
+    from the kept metrics of their fragments (``named``: kept-metrics key -> ranked key)."""
+    wanted = set(best["run_id"])
+    parts = [judged[judged["run_id"].isin(wanted)]] if len(judged) else []
+    missing = wanted - set(parts[0]["run_id"]) if parts else wanted
+    if missing:
+        fragments = set(best.loc[best["run_id"].isin(missing), FRAGMENT])
+        only = [k for k, n in named.items() if n in fragments]
+        read = rm.kept_run_metrics(lead, reference, only, known)
+        parts.append(read[read["run_id"].isin(missing)])
+    table = pd.concat(parts, ignore_index=True) if len(parts) > 1 else parts[0]
+    order = pd.Series(range(len(best)), index=best["run_id"].to_numpy())
+    return table.iloc[order[table["run_id"]].to_numpy().argsort()].reset_index(drop=True)
