@@ -189,9 +189,10 @@ def test_stale_kept_keys_are_not_taken(invocations, data_dir, monkeypatch) -> No
 
 def test_merged_keys_rank_as_all_runs_do() -> None:
     """:func:`~experiments.summary.kept_ranking.merged_ranking` of kept keys (ranked) and new
-    ones is :func:`ttc.evaluation.rank_runs` of all runs: ties broken by the time, then by
-    ``run_id``; a NaN key sorts last within its key; a NaN computing time falls back to
-    ``ms_per_frame``. A hand-checked order, then random tables with many ties."""
+    ones (merged in by binary search) is :func:`ttc.evaluation.rank_runs` of all runs: ties
+    broken by the time, then by ``run_id``; a NaN key sorts last within its key; a NaN
+    computing time falls back to ``ms_per_frame``. A hand-checked order, then random tables
+    with many ties, cut anywhere."""
     invalid, mid, _ = key_columns("camera")
     nan = np.nan
     hand = pd.DataFrame({
@@ -202,7 +203,7 @@ def test_merged_keys_rank_as_all_runs_do() -> None:
         "ms_per_frame": [9.0, 9.0, 3.0, 9.0, 9.0, 9.0, 9.0],
     })  # fmt: skip
     keys = ranking_keys(hand, "camera")
-    merged = merged_ranking(merged_ranking(keys.iloc[:3], keys.iloc[:0], "camera"),
+    merged = merged_ranking(merged_ranking(keys.iloc[:0], keys.iloc[:3], "camera"),
                             keys.iloc[3:], "camera")  # fmt: skip
     assert merged["run_id"].tolist() == ["c", "b", "d", "e", "g", "f", "a"]
     assert merged["rank"].tolist() == list(range(1, 8))
@@ -210,16 +211,16 @@ def test_merged_keys_rank_as_all_runs_do() -> None:
     for _ in range(200):
         n = int(rng.integers(1, 40))
         metrics = pd.DataFrame({
-            "run_id": rng.permutation([f"r{i:03d}" for i in range(n)]),
+            "run_id": [f"r{i}" for i in rng.choice(1000, n, replace=False)],  # r10 < r9
             invalid: rng.choice([0.0, 0.25, nan], n),
-            mid: rng.choice([1.0, 2.0, nan], n),
+            mid: rng.choice([1.0, 2.0, nan, np.inf], n),  # NaN ties with +inf
             "ms_compute_per_frame": rng.choice([3.0, 4.0, nan], n),
             "ms_per_frame": rng.choice([3.0, 5.0], n),
         })  # fmt: skip
         whole = ev.rank_runs(metrics, "camera")
         cut = int(rng.integers(0, n + 1))
         keys = ranking_keys(metrics, "camera")
-        earlier = merged_ranking(keys.iloc[:cut], keys.iloc[:0], "camera") if cut else keys.iloc[:0]
+        earlier = merged_ranking(keys.iloc[:0], keys.iloc[:cut], "camera")  # as kept: ranked
         merged = merged_ranking(earlier, keys.iloc[cut:], "camera")
         assert merged["run_id"].tolist() == whole["run_id"].tolist()
         assert merged["rank"].tolist() == whole["rank"].tolist()

@@ -20,7 +20,9 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from experiments.summary import kept_tables as kt
 from experiments.summary import run_metrics as rm
@@ -72,16 +74,48 @@ def ranking_keys(metrics: pd.DataFrame, sensor: str) -> pd.DataFrame:
 
 
 def merged_ranking(kept: pd.DataFrame, new: pd.DataFrame, sensor: str) -> pd.DataFrame:
-    """The runs of ``kept`` (kept keys, any order) and ``new`` (:func:`ranking_keys`; other
-    runs) ranked together by :func:`ttc.evaluation.rank_runs` on their keys alone (the rule's
-    time key as its ``ms_per_frame``), sorted by ``rank``; other columns carried along. A
-    ``grand`` re-run's 33,600 runs: a sort of four small columns."""
-    from ttc import evaluation as ev  # noqa: PLC0415
+    """The runs of ``kept`` (ranking keys in the rule's order: a kept ranking's rows in rank
+    order) and ``new`` (:func:`ranking_keys` of other runs, any order) ranked together,
+    sorted by a new ``rank`` (1..n); other columns carried along. ``new`` alone is ranked by
+    :func:`ttc.evaluation.rank_runs` on its keys (the rule's time key as its
+    ``ms_per_frame``), then merged into ``kept`` by a binary search on (keys, ``run_id``)
+    (:func:`_sortable`): the result is :func:`~ttc.evaluation.rank_runs` of all runs (test)."""
+    from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import)
 
-    parts = [p.drop(columns=["rank"], errors="ignore") for p in (kept, new) if len(p)]
-    table = pd.concat(parts, ignore_index=True) if parts else new.iloc[:0]
-    ranked = ev.rank_runs(table.rename(columns={TIME: "ms_per_frame"}), sensor)
-    return ranked.rename(columns={"ms_per_frame": TIME})
+    if len(new):
+        plain = new.drop(columns=["rank"], errors="ignore").rename(columns={TIME: "ms_per_frame"})
+        new = ev.rank_runs(plain, sensor).rename(columns={"ms_per_frame": TIME})
+    held, more = _sortable([kept, new], sensor)
+    at = np.searchsorted(held, more)  # each new run's place among the kept ones
+    n_kept, n_new = len(kept), len(new)
+    order = np.empty(n_kept + n_new, dtype=np.int64)
+    before = np.searchsorted(at, np.arange(n_kept), side="right")  # new runs ahead of each
+    order[np.arange(n_kept) + before] = np.arange(n_kept)
+    order[at + np.arange(n_new)] = n_kept + np.arange(n_new)
+    parts = [t.reset_index(drop=True) for t in (kept, new) if len(t)]
+    if not parts:
+        return new.assign(rank=np.zeros(0, dtype=np.int64))
+    table = pd.concat(parts, ignore_index=True) if len(parts) > 1 else parts[0]
+    return table.iloc[order].reset_index(drop=True).assign(rank=np.arange(1, len(order) + 1))
+
+
+def _sortable(tables: list[pd.DataFrame], sensor: str) -> list[np.ndarray]:
+    """Each table's runs as records (invalid rate, median MiD, time, ``run_id``) of one
+    dtype, NaN keys as +inf: NumPy orders records field by field, so their order is
+    :data:`ttc.evaluation.RANKING_RULE`'s (:func:`ttc.evaluation.ranks`: NaN last within its
+    key, then ``run_id``)."""
+    ids = [t["run_id"].to_numpy(dtype=str) if len(t) else np.array([], dtype=str) for t in tables]
+    width = max((i.dtype.itemsize // 4 for i in ids), default=1)
+    dtype = [("invalid", "f8"), ("mid", "f8"), ("ms", "f8"), ("run_id", f"U{max(width, 1)}")]
+    out = []
+    for table, run_ids in zip(tables, ids, strict=True):
+        records = np.empty(len(table), dtype=dtype)
+        for field, column in zip(("invalid", "mid", "ms"), key_columns(sensor), strict=True):
+            values = table[column].to_numpy(dtype=float) if len(table) else np.zeros(0)
+            records[field] = np.where(np.isnan(values), np.inf, values)
+        records["run_id"] = run_ids
+        out.append(records)
+    return out
 
 
 def kept_ranking(
@@ -105,20 +139,37 @@ def kept_ranking(
     metrics = pd.DataFrame()
     if todo:
         metrics = rm.kept_run_metrics(lead, reference, None if whole else todo, known)
-    fragment_of = {r: named[k] for k in todo for r in lead.runs(known.keys[k])}
-    new = ranking_keys(metrics, sensor) if len(metrics) else pd.DataFrame()
-    if len(new):
-        new[FRAGMENT] = new["run_id"].map(fragment_of)
-        new = new.join(metrics[lookup_axes(metrics)])
-    kept = kept.iloc[:0] if whole or not len(kept) else kept.drop(columns=[rm.LOOKED_UP])
     if not todo and list(files.values()) == [set(named.values())]:  # the ranking kept
         ranked = kept.sort_values("rank", ignore_index=True)
     else:  # the keys of every live run as one file, the others removed
+        new = _new_keys(lead, known, named, todo, metrics, sensor)
+        kept = kept.iloc[:0] if whole or not len(kept) else kept.sort_values("rank")
+        if len(files) > 1 and len(kept):  # ranks of several files: ranked again as new
+            kept, new = kept.iloc[:0], pd.concat([kept, new] if len(new) else [kept])
         ranked = merged_ranking(kept, new, sensor)
-        kt.consolidate(lead.sweep_dir, KIND, rm.stored(ranked, known.digests),
-                       list(named.values()), list(files))  # fmt: skip
+        table = pa.Table.from_pandas(ranked, preserve_index=False)
+        kt.consolidate(lead.sweep_dir, KIND, table, list(named.values()), list(files))
     best = ranked.head(top if top else 1)  # --top 0: the columns of none
     return ranked, _best_metrics(lead, reference, known, named, best, metrics)
+
+
+def _new_keys(
+    lead: LeadRows,
+    known: rm.MetricKeys,
+    named: dict[str, str],
+    todo: list[str],
+    metrics: pd.DataFrame,
+    sensor: str,
+) -> pd.DataFrame:
+    """The ranking keys (:func:`ranking_keys`) of the runs of ``metrics`` (those of the
+    fragments ``todo``), with their fragment's ranking key (:data:`FRAGMENT`), the lookup
+    axes and the lookups' digest, as kept."""
+    if not len(metrics):
+        return pd.DataFrame()
+    fragment_of = {r: named[k] for k in todo for r in lead.runs(known.keys[k])}
+    new = ranking_keys(metrics, sensor)
+    new[FRAGMENT] = new["run_id"].map(fragment_of)
+    return rm.with_looked_up(new.join(metrics[lookup_axes(metrics)]), known.digests)
 
 
 def _best_metrics(

@@ -240,9 +240,14 @@ def valid_kept(tables: list[pa.Table], digests: dict[str, dict[str, str]]) -> pd
     return kept[(kept[_FILE] == first).to_numpy(dtype=bool)].drop(columns=[_FILE])
 
 
+def with_looked_up(table: pd.DataFrame, digests: dict[str, dict[str, str]]) -> pd.DataFrame:
+    """``table`` (rows with :data:`FRAGMENT` and the axes the lookups read) with each
+    fragment's lookups' digest (:data:`LOOKED_UP`)."""
+    digest = _fragment_digest(table, looked_up(table, digests))
+    return table.assign(**{LOOKED_UP: table[FRAGMENT].map(digest)})
+
+
 def stored(metrics: pd.DataFrame, digests: dict[str, dict[str, str]]) -> pa.Table:
-    """``metrics`` (with :data:`FRAGMENT` and the axes the lookups read) as kept: with each
-    fragment's lookups' digest."""
-    digest = _fragment_digest(metrics, looked_up(metrics, digests))
-    table = metrics.assign(**{LOOKED_UP: metrics[FRAGMENT].map(digest)})
-    return pa.Table.from_pandas(table, preserve_index=False)
+    """``metrics`` (with :data:`FRAGMENT` and the axes the lookups read) as kept
+    (:func:`with_looked_up`)."""
+    return pa.Table.from_pandas(with_looked_up(metrics, digests), preserve_index=False)
