@@ -4,15 +4,19 @@ The summary of a sweep on one real recording prints the best runs of
 :func:`ttc.evaluation.rank_runs` of every run's metrics (:mod:`experiments.summary.run_metrics`).
 The rule reads three keys of a run: its invalid rate and median MiD on the ranked sensor and its
 time (:func:`ttc.evaluation.ranking_time`), then its ``run_id``. So each summary keeps those keys
-of every run with the rank they got (:data:`KIND`, :mod:`experiments.summary.kept_tables`: one
-file, each row under its fragment's kept-metrics key, the sensor and the rule's code), beside
-the digest of the computing times the fragment's runs look up, as the kept metrics are
-(:func:`experiments.summary.run_metrics.stored`). A later summary takes the kept keys of every
-fragment still live whose digest is unchanged, judges only the other fragments' runs (new ones,
-and those whose looked-up times moved: their kept metrics, else computed), ranks the keys of all
-runs together (:func:`merged_ranking`: the rule on a few small columns) and reads the full
-metrics of the best ``top`` runs alone. The ranking is :func:`ttc.evaluation.rank_runs` of every
-run's metrics (test); deleting ``.summary/`` is always safe.
+of every run, with the lookup axes and the rank they got, in one file (:data:`KIND`,
+:mod:`experiments.summary.kept_tables`; each run under its fragment's kept-metrics key, the
+sensor and the rule's code) beside the digest of the computing times the fragment's runs look
+up, as the kept metrics are (:func:`experiments.summary.run_metrics.with_looked_up`). A later
+summary takes the kept keys of each fragment still live whose digest is unchanged, in their kept
+order; judges only the other fragments' runs (new ones, and those whose looked-up times moved:
+from their kept metrics, else computed); ranks their keys alone and merges them into the kept
+order (:func:`merged_ranking`: a binary search on a few small columns); keeps the result as the
+one file; and reads the full metrics of the best ``top`` runs alone. The ranking is
+:func:`ttc.evaluation.rank_runs` of every run's metrics (test); deleting ``.summary/`` is always
+safe. On 15,360 runs (11,520 kept, 3,840 new) the ranking step took as long as reading and
+ranking every run's metrics (≈ 0.45 s, most of it judging the new runs); with nothing new,
+0.16 s instead of 0.27 s.
 """
 
 from __future__ import annotations
@@ -184,8 +188,9 @@ def _best_metrics(
     order: from ``judged`` (the metrics this summary read or computed) where there, else read
     from the kept metrics of their fragments (``named``: kept-metrics key -> ranked key)."""
     wanted = set(best["run_id"])
-    parts = [judged[judged["run_id"].isin(wanted)]] if len(judged) else []
-    missing = wanted - set(parts[0]["run_id"]) if parts else wanted
+    found = judged[judged["run_id"].isin(wanted)] if len(judged) else judged
+    parts = [found] if len(found) else []  # no empty part: it would count in the types
+    missing = wanted - set(found["run_id"]) if len(found) else wanted
     if missing:
         fragments = set(best.loc[best["run_id"].isin(missing), FRAGMENT])
         only = [k for k, n in named.items() if n in fragments]
