@@ -113,22 +113,19 @@ def build_report(
         written = write_sweep_metrics(data, reference)
         lap("metrics")
         has_rows = not data.frames.empty
-        # the every-object report in a second process meanwhile (its own files)
-        objects_step = forked.start(
-            lambda: objects_by_detector(data, ctx, out) if has_rows else {}, "objects"
-        )
+        side = forked.start(lambda: _side_sections(data, reference, ctx, out, pictures),
+                            "FP.5 and every object")  # fmt: skip
         reference_report.reference_report(data, reference, out)
         lap("reference report")
-        fp5_table = fp5.fp5_report(data, reference, ctx, out, pictures) if has_rows else None
-        lap("fp5")
         fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None
         ctx.drop_details()
         lap("fp6")
         fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
         lap("fp7")
-        by_detector = objects_step.result()
+        fp5_table, by_detector, side_times = side.result()
+        times.update(side_times)
         objects = next(iter(by_detector.values()), None)  # the detector most runs use
-        lap("objects (waited for)")
+        lap("waited for fp5, objects")
         index = (
             html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables,
                         objects_ranking=objects) if html else None
@@ -145,6 +142,24 @@ def build_report(
         log("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in times.items())
             + f"; {ctx.calls} pair details")  # fmt: skip
         return summary
+
+
+def _side_sections(
+    data: SweepData, reference, ctx: Context, out: Path, pictures: bool
+) -> tuple[Any, dict[str, Any], dict[str, float]]:
+    """The FP.5 and every-object sections, run in a second process (:mod:`.forked`) beside
+    the reference, FP.6 and FP.7 sections: (FP.5's table or None, each detector's
+    every-object ranking, the seconds each took)."""
+    times: dict[str, float] = {}
+    start = time.perf_counter()
+    has_rows = not data.frames.empty
+    fp5_table = fp5.fp5_report(data, reference, ctx, out, pictures) if has_rows else None
+    ctx.drop_details()
+    release_freed_memory()
+    times["fp5 (second process)"] = (middle := time.perf_counter()) - start
+    by_detector = objects_by_detector(data, ctx, out) if has_rows else {}
+    times["objects (second process)"] = time.perf_counter() - middle
+    return fp5_table, by_detector, times
 
 
 def build_drives_report(
