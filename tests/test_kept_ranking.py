@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from experiments import store
-from experiments.summary import collect, kept_ranking
+from experiments.summary import collect, kept_ranking, kept_tables
 from experiments.summary.kept_ranking import TIME, key_columns, merged_ranking, ranking_keys
 from experiments.summary.kept_tables import CACHE_DIR, FRAGMENT
 from experiments.summary.lead_rows import LeadRows
@@ -188,6 +188,11 @@ def test_stale_kept_keys_are_not_taken(invocations, data_dir, monkeypatch) -> No
     assert judged == [fast[0]]  # its old fragment no longer live
     check(reference.assign(ttc_ref_s=reference["ttc_ref_s"] * 1.01))
     assert sorted(judged) == sorted(ranked.index)
+    metrics_files = list((sweep / CACHE_DIR).glob("metrics-*.parquet"))
+    assert len(metrics_files) > 1
+    monkeypatch.setattr(kept_tables, "MAX_KEPT_FILES", 1)  # every run's kept metrics as one file
+    check()
+    assert judged == [] and len(list((sweep / CACHE_DIR).glob("metrics-*.parquet"))) == 1
 
 
 def test_merged_keys_rank_as_all_runs_do() -> None:
