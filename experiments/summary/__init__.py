@@ -5,7 +5,9 @@ and a sweep's end through :mod:`experiments.sweep.callbacks`). What it keeps, an
 
 * ``<sweep>/.summary/<kind>-<digest>.parquet``: tables kept per fragment of the append-only
   store, named one way (:mod:`.kept_tables`): ``lead`` (each fragment's lead rows,
-  :mod:`.lead_rows`) and ``metrics`` (each fragment's runs' metrics, :mod:`.run_metrics`);
+  :mod:`.lead_rows`), ``metrics`` (each fragment's runs' metrics, :mod:`.run_metrics`) and
+  ``ranked`` (every run's ranking keys and rank, merged with a re-run's new runs,
+  :mod:`.kept_ranking`); ``counts.pkl`` and ``schemas.pkl`` beside them;
 * the stage cache (``$TTC_CACHE_DIR``): a recording's reference TTC and every object's boxes
   and reference (:mod:`.references`), keyed by the recording's inputs;
 * nothing else: which recording a run is on and which report a sweep gets are derived from
