@@ -204,9 +204,10 @@ def test_a_report_holds_no_detector_network_after_the_objects_reference(
     camera_grid, grid_report: Path, tmp_path: Path, monkeypatch
 ) -> None:
     """A report whose steps detect objects (an empty stage cache: every frame's boxes
-    computed again) loads YOLOv3-tiny and does not hold it once the objects' reference is
-    made (≈ 0.2 GB through the "every object" report's peak otherwise); its tables are those
-    of the report made with the sweep's cache."""
+    computed again) loads YOLOv3-tiny and holds it in neither process once its detecting
+    steps are done (the every-object reference in the second, FP.6's pair details in the
+    report's own: ≈ 0.2 GB through the rest otherwise); its tables are those of the report
+    made with the sweep's cache."""
     from experiments.report.report_command import build_report
     from ttc.features import objects
 

@@ -32,6 +32,7 @@ from ttc import evaluation as ev
 from ttc.engine.cache import StageCache
 from ttc.engine.runner import pair_detail
 from ttc.features.model_files import uses_bundled_files
+from ttc.features.objects import clear_detector_cache
 from ttc.io.frames import read_image
 from ttc.rows import PairDetail
 from ttc.settings import FrameRange, Settings
@@ -194,9 +195,11 @@ class Context:
     def drop_details(self) -> None:
         """Forget the pair details and images kept (FP.5 and FP.6 ask for them; a report's
         later sections do not: ``grand`` 0–18's 16 kept held 43 MB through the "every object"
-        report)."""
+        report) and the object detectors' networks a detail may have loaded (an empty stage
+        cache: YOLOv3-tiny, ≈ 0.2 GB, read again if a later step detects)."""
         self.details.clear()
         self.images.clear()
+        clear_detector_cache()
 
     def setup(self, runs: pd.DataFrame, run_id: str) -> tuple[Settings, FrameRange]:
         """:func:`setting_of_run` of a run of ``runs`` (memoised by run id: unique across a
