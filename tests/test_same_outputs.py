@@ -20,6 +20,7 @@ import pandas as pd
 import pytest
 
 from experiments import store
+from experiments.tools.report_timing import clone_at
 from tests.conftest import PROJECT_ROOT, data_root
 from tests.test_report import env_for
 
@@ -42,16 +43,14 @@ PROVENANCE = re.compile(
 COLLECT_HINT = re.compile(r"python -m experiments\.(summary\.)?collect")
 
 
-def _clone_before(clone: Path) -> Path:
-    """This repository at :data:`BEFORE` in ``clone``; skips in a shallow clone without it."""
+def _clone_before(parent: Path) -> Path:
+    """This repository at :data:`BEFORE` in ``parent``
+    (:func:`experiments.tools.report_timing.clone_at`, the benchmark's before code); skips in
+    a shallow clone without it."""
     if subprocess.run(["git", "cat-file", "-e", f"{BEFORE}^{{commit}}"], cwd=PROJECT_ROOT,
                       capture_output=True).returncode:  # fmt: skip
         pytest.skip(f"commit {BEFORE} is not in this repository (shallow clone?)")
-    if not (clone / "experiments").is_dir():
-        subprocess.run(["git", "clone", "-q", "--shared", "--no-checkout", str(PROJECT_ROOT),
-                        str(clone)], check=True)  # fmt: skip
-        subprocess.run(["git", "checkout", "-q", BEFORE], cwd=clone, check=True)
-    return clone
+    return clone_at(BEFORE, parent)[0]
 
 
 def _run(code: Path, module: str, args: list[str], root: Path) -> str:
@@ -72,7 +71,7 @@ def both(tmp_path_factory) -> dict[str, dict]:
     tables removed before each: each code derives them itself):
     ``{"before"|"after": {"sweep", "summary", "report"}}``."""
     base = tmp_path_factory.mktemp("same_outputs")
-    code = {"before": _clone_before(base / "clone"), "after": PROJECT_ROOT}
+    code = {"before": _clone_before(base), "after": PROJECT_ROOT}
     _run(code["before"], "experiments.run", SWEEP, base / "before")
     _run(code["after"], "experiments.run", SWEEP, base / "work")
     work = base / "work" / "sweeps" / "same"

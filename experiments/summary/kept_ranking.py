@@ -22,7 +22,6 @@ it is judging the new runs; with nothing new, 0.14â€“0.25 s where it took 0.25â€
 from __future__ import annotations
 
 import hashlib
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -41,10 +40,7 @@ TIME = "ranking_ms"
 
 def _code_key(sensor: str) -> str:
     """Digest of the rule's code and the sensor ranked on."""
-    import ttc  # noqa: PLC0415
-
-    text = (Path(ttc.__file__).parent / "evaluation" / "ranking.py").read_text()
-    return hashlib.sha256(f"{text}|{sensor}".encode()).hexdigest()
+    return rm.code_digest(("evaluation/ranking.py",), sensor)
 
 
 def key_columns(sensor: str) -> list[str]:

@@ -45,13 +45,19 @@ CODE_FILES = ("evaluation/metrics.py", "evaluation/errors.py", "evaluation/refer
               "evaluation/stage_times.py", "settings.py")  # fmt: skip
 
 
-def _code_key() -> str:
-    """Digest of the metrics' code and the library versions."""
+def code_digest(files: tuple[str, ...], *also: str) -> str:
+    """Digest of the code of ``files`` (paths in the ``ttc`` package) and ``also`` (versions,
+    a sensor): what a kept table of the summary depends on besides its rows."""
     import ttc  # noqa: PLC0415
 
     root = Path(ttc.__file__).parent
-    text = "".join((root / name).read_text() for name in CODE_FILES)
-    return hashlib.sha256(f"{text}|{pd.__version__}|{np.__version__}".encode()).hexdigest()
+    text = "".join((root / name).read_text() for name in files)
+    return hashlib.sha256("|".join([text, *also]).encode()).hexdigest()
+
+
+def _code_key() -> str:
+    """Digest of the metrics' code and the library versions."""
+    return code_digest(CODE_FILES, pd.__version__, np.__version__)
 
 
 def reference_key(reference: pd.DataFrame) -> str:
