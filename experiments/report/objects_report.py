@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiments.host.heap import release_freed_memory
 from experiments.report.encode import markdown_table, write_csv, write_text
 from experiments.report.header import provenance_markdown
 from experiments.report.judged_rows import camera_runs
@@ -63,13 +62,9 @@ def objects_report(data: SweepData, reference: pd.DataFrame, out: Path) -> pd.Da
     # the box pairs of those runs: all of them as the load keeps them (not copied then)
     judged = judge_objects(rows_of_runs(data.boxes, labels.index), reference)
     judged["setting"] = judged["run_id"].map(labels)
-    release_freed_memory()  # each table's temporaries given back before the next is made
     write_csv(level_metrics(judged, ["setting", "role", "ttc_bin"]), out / "objects.csv")
-    release_freed_memory()
     write_csv(level_metrics(judged, ["setting"]), out / "objects_levels.csv")
-    release_freed_memory()
     rankings = level_rankings(judged)
-    release_freed_memory()
     ranking = rankings[rankings["difficulty"] == "all"].drop(columns="difficulty")
     lead = track_bootstrap_ranks(judged, role="lead")
     write_csv(rankings, out / "objects_ranking.csv")
