@@ -20,6 +20,7 @@ import pandas as pd
 import pytest
 
 from experiments import store
+from experiments.report import kept_judged
 from experiments.tools.report_timing import clone_at
 from tests.conftest import PROJECT_ROOT, data_root
 from tests.test_report import env_for
@@ -86,6 +87,12 @@ def both(tmp_path_factory) -> dict[str, dict]:
                                            "--cache-dir", str(base / "work" / "cache")],
              base / "work")  # fmt: skip
         out[name]["report"] = (base / "work" / "report").rename(base / f"report_{name}")
+    # today's report again, from the cuts of the rows its first report kept (kept_judged)
+    assert list((work / ".summary").glob(f"{kept_judged.JUDGED}-*.parquet"))
+    _run(code["after"], "experiments.report", [str(work), "--out", str(base / "kept"),
+                                               "--cache-dir", str(base / "work" / "cache")],
+         base / "work")  # fmt: skip
+    out["kept"] = {"report": base / "kept"}
     return out
 
 
@@ -147,8 +154,12 @@ def test_the_summary_is_the_same(both) -> None:
 
 
 @pytest.mark.slow
-def test_every_report_file_is_the_same(both) -> None:
-    before, after = _report_files(both["before"]["report"]), _report_files(both["after"]["report"])
+@pytest.mark.parametrize("after_name", ["after", "kept"])
+def test_every_report_file_is_the_same(both, after_name) -> None:
+    """Every file of today's report (``after``: its rows cut from the fragments; ``kept``: a
+    second report, from the cuts the first one kept) is the before code's."""
+    before = _report_files(both["before"]["report"])
+    after = _report_files(both[after_name]["report"])
     assert {"fp5_lidar.md", "fp6_ranking.csv", "fp7_fusion.csv", "objects.csv"} <= set(after)
     assert sorted(after) == sorted(before)
     differ = [name for name in after if after[name] != before[name]]

@@ -2,14 +2,14 @@
 pair) a report judges only each pair's lead row (:func:`ttc.evaluation.lead_rows`) on the
 columns it reads (:func:`read_columns`), and the matched box pairs of one run per camera
 setting (the "every object" report) on a few. The store is read a fragment at a time
-(:func:`experiments.store.scan_sweep`) and each fragment is cut to those rows at once, so no
-frame of every row and every column is built (``grand`` 0–18: 3.06 M rows, 2.4 GB as one
-pandas frame; docs/benchmarks.md)."""
+and each fragment is cut to those rows at once (:func:`cut_fragment`), so no frame of every
+row and every column is built (``grand`` 0–18: 3.06 M rows, 2.4 GB as one pandas frame;
+docs/benchmarks.md); the cuts are kept (:mod:`experiments.report.kept_judged`)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from collections.abc import Set as AbstractSet
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -17,7 +17,6 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from experiments.configs.identity import with_neutral_axes
-from experiments.host.heap import release_freed_memory
 from experiments.store.schema import FRAME_COLUMNS
 from experiments.summary.recordings import run_ids_by_recording, setting_of
 from ttc import evaluation as ev
@@ -52,12 +51,6 @@ UNREAD_COLUMNS: tuple[str, ...] = (
     "box_class", "box_confidence", "box_x", "box_y", "box_shared_matches",
     "lidar_outliers_prev", "lidar_outliers_curr",
 )  # fmt: skip
-#: Fragments read (:func:`read_rows`) between two
-#: :func:`~experiments.host.heap.release_freed_memory` calls (``grand`` 0–18: 175
-#: fragments; its load step peaked 0.28 GB higher without them, and a call after every
-#: fragment costs ≈ 25 ms of system time each); their stage times are counted together
-#: (a count per fragment: 1.2 s of small tables for ``grand``'s 175).
-TRIM_EVERY = 16
 #: Columns read only to count and look up the stage times (:data:`TIME_COLUMNS`), dropped
 #: from the judged rows once ``ms_compute_per_frame`` is known (:func:`compute_times`).
 COUNTED_ONLY: tuple[str, ...] = tuple(c for c in TIME_COLUMNS if c.startswith("cached_"))
@@ -124,53 +117,47 @@ def box_runs(runs: pd.DataFrame) -> set[str]:
     return {i for ids in by_recording for i in camera_runs(runs[is_in(runs["run_id"], ids)]).index}
 
 
-def read_rows(
-    tables: Iterable[pa.Table], runs: pd.DataFrame
-) -> tuple[pd.DataFrame, pd.DataFrame, ev.StageCounts]:
-    """(judged rows, box rows, stage time counts) of the runs ``runs`` of a sweep whose rows
-    come as ``tables`` (:func:`experiments.store.scan_sweep`: a fragment at a time, on
-    :func:`read_columns`, one schema; every row of a run is in one fragment): judged rows
-    (:func:`judged_mask`) on those columns, the matched box pairs of :func:`box_runs` on
-    :data:`BOX_COLUMNS`, and the computed stage times of every row counted
+@dataclass
+class Cut:
+    """A fragment's rows as a report reads them (:func:`cut_fragment`)."""
+
+    judged: pa.Table  #: the judged rows (:func:`judged_mask`) on :func:`read_columns`
+    boxes: pa.Table  #: the matched box pairs of the boxed runs on :data:`BOX_COLUMNS`
+    counts: ev.StageCounts  #: the computed stage times of every row of the runs judged
+    with_nulls: set[str]  #: the columns with a null in the fragment (any run)
+
+
+def cut_fragment(table: pa.Table, ids: AbstractSet[str], boxed_ids: AbstractSet[str]) -> Cut:
+    """The :class:`Cut` of a fragment's rows ``table`` (:func:`experiments.store.dataset.iter_tables`
+    on :func:`read_columns`, the sweep's unified schema) for a report that judges the runs
+    ``ids`` and the box pairs of the runs ``boxed_ids`` (:func:`box_runs`): its judged rows
+    (:func:`judged_mask`) on those columns, the matched box pairs (both boxes found) on
+    :data:`BOX_COLUMNS`, and the computed stage times of the rows of ``ids`` counted
     (:func:`ttc.evaluation.stage_time_counts`: a few rows per stage, frame and value).
 
-    A fragment's rows are picked in Arrow (one take of every column) and only the columns
-    that pick them become pandas (:func:`key_frame`), the counted ones a few fragments at a
-    time (:data:`TRIM_EVERY`); the picked rows become one frame at
-    the end (:func:`as_frame`): the frame pandas gives of the fragments' frames cut and
-    stacked, made of 2 Arrow calls a fragment instead of one pandas call per column and
-    fragment (``grand`` 0–18: 175 fragments × 66 columns). Memory: what is kept, and one
-    fragment."""
-    ids, boxed_ids = set(runs["run_id"]), box_runs(runs)
-    lead_parts: list[pa.Table] = []
-    box_parts: list[pa.Table] = []
-    counts: list[ev.StageCounts] = []
-    timed: list[pa.Table] = []  # the time columns of the fragments not counted yet
-    with_nulls: set[str] = set()
-    for table in tables:
-        names = table.column_names
-        with_nulls.update(n for n, c in zip(names, table.columns, strict=True) if c.null_count)
-        keys = key_frame(table)
-        mine = is_in(keys["run_id"], ids)
-        judged = judged_mask(keys) & mine
-        boxed = (
-            is_in(keys["run_id"], boxed_ids)
-            & (keys["prev_box"] >= 0).to_numpy()
-            & (keys["curr_box"] >= 0).to_numpy()
-            & mine
-        )
-        lead_parts.append(picked_rows(table, [c for c in read_columns() if c in names], judged))
-        box_parts.append(picked_rows(table, [c for c in BOX_COLUMNS if c in names], boxed))
-        timed.append(table.select([c for c in TIME_COLUMNS if c in names]).filter(mine))
-        del table, keys
-        if len(lead_parts) % TRIM_EVERY == 0:  # the fragments' freed pages back as they go
-            counts.append(ev.stage_time_counts(pa.concat_tables(timed).to_pandas()))
-            timed.clear()
-            release_freed_memory()
-    if timed:
-        counts.append(ev.stage_time_counts(pa.concat_tables(timed).to_pandas()))
-    lead, boxes = as_frame(lead_parts, with_nulls), as_frame(box_parts, with_nulls)
-    return lead, boxes, ev.join_counts(counts)
+    The rows are picked in Arrow (one take of every column) and only the columns that pick
+    them become pandas (:func:`key_frame`); stacked in the fragments' order, the picked rows
+    become one frame at the end (:func:`as_frame`): the frame pandas gives of the fragments'
+    frames cut and stacked, made of 2 Arrow calls a fragment instead of one pandas call per
+    column and fragment (``grand`` 0–18: 175 fragments × 66 columns)."""
+    names = table.column_names
+    with_nulls = {n for n, c in zip(names, table.columns, strict=True) if c.null_count}
+    keys = key_frame(table)
+    mine = is_in(keys["run_id"], ids)
+    judged = judged_mask(keys) & mine
+    boxed = (
+        is_in(keys["run_id"], boxed_ids)
+        & (keys["prev_box"] >= 0).to_numpy()
+        & (keys["curr_box"] >= 0).to_numpy()
+        & mine
+    )
+    timed = table.select([c for c in TIME_COLUMNS if c in names]).filter(mine)
+    return Cut(
+        picked_rows(table, [c for c in read_columns() if c in names], judged),
+        picked_rows(table, [c for c in BOX_COLUMNS if c in names], boxed),
+        ev.stage_time_counts(timed.to_pandas()),
+        with_nulls,
+    )
 
 
 def key_frame(table: pa.Table) -> pd.DataFrame:

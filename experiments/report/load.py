@@ -25,7 +25,7 @@ from experiments.configs.structured import (
 from experiments.data.first_run import ensure_setting_models
 from experiments.host.heap import release_freed_memory
 from experiments.host.paths import default_cache_dir, default_data_root, resolve
-from experiments.report import judged_rows
+from experiments.report import judged_rows, kept_judged
 from experiments.store.flat_configs import flatten_kept
 from experiments.summary.references import recording_references, sequence_of
 from ttc import evaluation as ev
@@ -81,15 +81,15 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
     judged rows get ``ms_compute_per_frame`` looked up over every row of all of them
     (:func:`ttc.evaluation.compute_times`, from the stage times counted). Bounded memory: the
     rows are read a fragment at a time and cut at once, to the judged rows, the box pairs of a
-    few runs and the counts (:func:`experiments.report.judged_rows.read_rows`)."""
+    few runs and the counts (:func:`experiments.report.judged_rows.cut_fragment`), each
+    fragment's cut kept for the next report (:mod:`experiments.report.kept_judged`)."""
     dirs = [Path(d) for d in dirs]
     lead_parts, box_parts, counts, run_parts, overrides = [], [], [], [], {}
     seen: set[str] = set()
     repeated = 0
     for d in dirs:
-        parts, runs = store.scan_sweep(
-            d, judged_rows.read_columns(), exclude=store.UNREAD_RECORD_FIELDS
-        )
+        records = store.sweep_records(d)
+        runs = store.runs_table(records, exclude=store.UNREAD_RECORD_FIELDS)
         release_freed_memory()  # the records listed: their pages back before the rows come
         if runs.empty:
             continue
@@ -101,7 +101,7 @@ def load_sweeps(dirs: Iterable[Path | str]) -> SweepData:
         # every config flattened once (those an earlier report flattened read back): the
         # recordings, setting ids and headers below read them
         flatten_kept(d, runs["config"])
-        lead, boxes, sweep_counts = judged_rows.read_rows(parts, runs)
+        lead, boxes, sweep_counts = kept_judged.read_judged(d, runs, records)
         if not lead.empty:
             lead_parts.append(lead)
             box_parts.append(boxes)

@@ -55,6 +55,7 @@ from experiments.store.dataset import (
     rows_dataset,
     runs_table,
     scan_sweep,
+    sweep_records,
 )
 from experiments.store.files import (
     COMPLETE_STATUSES,
@@ -84,6 +85,7 @@ RECORDS_GLOB = f"{RUNS_DIR}/*.json"
 
 __all__ = [
     "scan_sweep",
+    "sweep_records",
     "UNREAD_RECORD_FIELDS",
     "RUNS_DIR",
     "ROWS_GLOB",

@@ -249,6 +249,15 @@ def row_count(records: list[dict[str, Any]]) -> int:
     return sum(int(r.get("n_rows") or 0) for r in records if r.get("status") == "ok")
 
 
+def sweep_records(sweep_dir: Path) -> list[dict[str, Any]]:
+    """Every run record of a sweep (:func:`list_records`); :class:`StoreError` when the
+    folder has no ``runs/``."""
+    sweep_dir = Path(sweep_dir)
+    if not (sweep_dir / RUNS_DIR).is_dir():
+        raise StoreError(sweep_dir, f"no {RUNS_DIR}/ folder: not a sweep folder")
+    return list_records(sweep_dir)
+
+
 def scan_sweep(
     sweep_dir: Path, columns: list[str] | None = None, exclude: tuple[str, ...] = ()
 ) -> tuple[Iterator[pa.Table], pd.DataFrame]:
@@ -258,10 +267,7 @@ def scan_sweep(
     only part of each (``columns``: only these, those the sweep has). A fragment that a
     compaction removes while it is read raises :class:`StoreError` naming it (open the
     sweep again)."""
-    sweep_dir = Path(sweep_dir)
-    if not (sweep_dir / RUNS_DIR).is_dir():
-        raise StoreError(sweep_dir, f"no {RUNS_DIR}/ folder: not a sweep folder")
-    records = list_records(sweep_dir)
+    records = sweep_records(sweep_dir)
     frags = fragments(sweep_dir, records)
     schema = unified_schema(frags)
     if schema is None:

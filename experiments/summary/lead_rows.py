@@ -79,6 +79,18 @@ def _keep_schemas(sweep_dir: Path, known: dict[str, pa.Schema], frags: list[Frag
         )
 
 
+def sweep_schema(sweep_dir: Path, frags: list[Fragment]) -> pa.Schema | None:
+    """The unified schema of a sweep's live fragments ``frags``
+    (:func:`experiments.store.dataset.unified_schema`; None: no rows), each fragment's own
+    schema read from its file once and kept (:data:`SCHEMAS_FILE`)."""
+    known = _kept_schemas(sweep_dir, frags)
+    before = len(known)
+    schema = unified_schema(frags, known)
+    if len(known) > before:
+        _keep_schemas(sweep_dir, known, frags)
+    return schema
+
+
 def _code_key(columns: list[str]) -> str:
     """Digest of the reduction's code and the columns it reads."""
     from ttc import evaluation as ev  # noqa: PLC0415 (SciPy: slow to import, rarely needed)
@@ -130,12 +142,8 @@ class LeadRows:
 
         self.sweep_dir = Path(sweep_dir)
         frags = fragments(sweep_dir, records)
-        known = _kept_schemas(sweep_dir, frags)
-        before = len(known)
         #: The dataset's unified schema (None: no rows).
-        self.schema = unified_schema(frags, known)
-        if len(known) > before:
-            _keep_schemas(sweep_dir, known, frags)
+        self.schema = sweep_schema(sweep_dir, frags)
         if self.schema is None:
             frags = []
         columns = [c for c in self.schema.names if c not in ev.NOT_JUDGED_COLUMNS] if frags else []
