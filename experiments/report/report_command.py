@@ -28,7 +28,7 @@ from experiments.report import (
     truth_report,
 )
 from experiments.report.detectors_report import objects_by_detector
-from experiments.report.html import html_report
+from experiments.report.html import camera_pages, html_report, other_pages
 from experiments.report.load import (
     Context,
     SweepData,
@@ -122,12 +122,15 @@ def build_report(
         lap("fp6")
         fp7_tables = fp7.fp7_report(data, reference, out) if has_rows else None
         lap("fp7")
+        if html:  # while the second process works
+            camera_pages(data, fp6_tables, out)
+            lap("html camera pages")
         fp5_table, by_detector, side_times = side.result()
         times.update(side_times)
         objects = next(iter(by_detector.values()), None)  # the detector most runs use
         lap("waited for fp5, objects")
         index = (
-            html_report(data, reference, fp5_table, fp6_tables, out, fp7_tables,
+            other_pages(data, reference, fp5_table, fp6_tables, out, fp7_tables,
                         objects_ranking=objects) if html else None
         )  # fmt: skip
         lap("html")

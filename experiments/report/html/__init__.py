@@ -30,9 +30,11 @@ from experiments.report.html.page import write_assets
 from experiments.report.load import SweepData
 from ttc.atomic import write_bytes_atomic
 
+#: The FP.6 figures of the markdown report (copied into ``img/`` with the camera pages).
+FP6_FIGURES = ("fp6_heatmap.png", "fp6_ttc_series.png", "fp6_pareto.png",
+               "fp6_rank_intervals.png")  # fmt: skip
 #: Figures of the markdown report shown on the HTML pages (copied into ``img/``).
-FIGURES = ("reference.png", "fp5_lidar_ttc.png", "fp6_heatmap.png", "fp6_ttc_series.png",
-           "fp6_pareto.png", "fp6_rank_intervals.png", "fp7_fusion_ttc.png",
+FIGURES = ("reference.png", "fp5_lidar_ttc.png", *FP6_FIGURES, "fp7_fusion_ttc.png",
            *OBJECT_FIGURES)  # fmt: skip
 
 
@@ -80,20 +82,70 @@ def html_report(
     objects_ranking: pd.DataFrame | None = None,
 ) -> Path:
     """Write the HTML report of the tables the markdown writers returned into ``out/html``
-    (replacing an earlier one) and return its ``index.html``. The pictures and figures are
-    those the markdown writers put in ``out``. ``truth_text``: the ``truth.md`` of a sweep
-    judged against an exact truth, shown as its reference page. ``objects_ranking``: the
-    every-object ranking (``objects_ranking.csv`` rows) of a real recording, shown on
-    ``objects.html`` beside ``objects.md``; on a recording without a judged lead it is the
-    verdict ``index.html`` leads with."""
+    (replacing an earlier one) and return its ``index.html``: :func:`camera_pages` then
+    :func:`other_pages`, whose parameters these are."""
+    camera_pages(data, fp6_tables, out)
+    return other_pages(data, reference, fp5_table, fp6_tables, out, fp7_tables, truth_text,
+                       objects_ranking)  # fmt: skip
+
+
+def camera_pages(
+    data: SweepData, fp6_tables: tuple[pd.DataFrame, pd.DataFrame] | None, out: Path
+) -> None:
+    """Start the HTML report in ``out/html`` (an earlier one removed, the assets written) with
+    its camera pages: ``fp6.html`` and a page per setting of :func:`paged_settings`, with the
+    FP.6 figures and pictures the markdown writer put in ``out``. The report's own process
+    writes them as soon as FP.6 is done, while its second process still works
+    (:mod:`experiments.report.forked`); :func:`other_pages` writes the rest."""
     folder = out / "html"
     shutil.rmtree(folder, ignore_errors=True)
     write_assets(folder, write_text)
-    figures = {name: name for name in FIGURES if (out / name).is_file()}
+    figures = {name: name for name in FP6_FIGURES if (out / name).is_file()}
     _copy_files([out / name for name in figures], folder / "img")
     fp6_pictures = _copy_files(sorted((out / "fp6_pictures").glob("*.*")), folder / "pictures/fp6")
-    fp5_pictures = _copy_files(sorted((out / "fp5_pictures").glob("*.*")), folder / "pictures/fp5")
     t, ranking = fp6_tables if fp6_tables is not None else (None, None)
+    if t is None or ranking is None or ranking.empty:
+        write_text(pages.page("FP.6 camera", "<p>No camera setting ran.</p>", here="fp6.html"),
+                   folder / "fp6.html")  # fmt: skip
+        return
+    paged = paged_settings(ranking)
+    write_text(pages.fp6_page(pages.provenance_block(data), t, fp6_pictures, figures, paged),
+               folder / "fp6.html")  # fmt: skip
+    needed = ["dataset", "setting", "reason_text", *pages.FRAME_COLUMNS]
+    # only the rows of the settings that get a page (grand: 300 of 5,600 settings)
+    pairs = pd.MultiIndex.from_arrays([t["dataset"].astype(str), t["setting"].astype(str)])
+    shown = t.loc[pairs.isin(list(paged)), needed]
+    by_setting = dict(list(shown.groupby(["dataset", "setting"], sort=False)))
+    for _, row in ranking.iterrows():
+        rows = by_setting.get((row["dataset"], row["setting"]))
+        if rows is None or (row["dataset"], row["setting"]) not in paged:
+            continue
+        path = folder / pages.setting_href(row["dataset"], row["setting"])
+        write_text(pages.setting_page(row, rows, fp6_pictures), path)
+
+
+def other_pages(
+    data: SweepData,
+    reference: pd.DataFrame,
+    fp5_table: pd.DataFrame | None,
+    fp6_tables: tuple[pd.DataFrame, pd.DataFrame] | None,
+    out: Path,
+    fp7_tables: tuple[pd.DataFrame, pd.DataFrame] | None = None,
+    truth_text: str | None = None,
+    objects_ranking: pd.DataFrame | None = None,
+) -> Path:
+    """The pages of the HTML report in ``out/html`` besides :func:`camera_pages` (written
+    first), and its ``index.html`` (returned). The pictures and figures are those the markdown
+    writers put in ``out``. ``truth_text``: the ``truth.md`` of a sweep judged against an
+    exact truth, shown as its reference page. ``objects_ranking``: the every-object ranking
+    (``objects_ranking.csv`` rows) of a real recording, shown on ``objects.html`` beside
+    ``objects.md``; on a recording without a judged lead it is the verdict ``index.html``
+    leads with."""
+    folder = out / "html"
+    figures = {name: name for name in FIGURES if (out / name).is_file()}
+    _copy_files([out / name for name in figures if name not in FP6_FIGURES], folder / "img")
+    fp5_pictures = _copy_files(sorted((out / "fp5_pictures").glob("*.*")), folder / "pictures/fp5")
+    ranking = fp6_tables[1] if fp6_tables is not None else None
     provenance = pages.provenance_block(data)
     paged = paged_settings(ranking) if ranking is not None and not ranking.empty else set()
     verdict = verdict_paragraphs(ranking, objects_ranking)
@@ -111,23 +163,6 @@ def html_report(
         write_text(pages.reference_page(provenance, reference, figures), folder / "reference.html")
     else:
         write_text(pages.truth_page(truth_text), folder / "reference.html")
-    if t is not None and ranking is not None and not ranking.empty:
-        write_text(pages.fp6_page(provenance, t, fp6_pictures, figures, paged),
-                   folder / "fp6.html")  # fmt: skip
-        needed = ["dataset", "setting", "reason_text", *pages.FRAME_COLUMNS]
-        # only the rows of the settings that get a page (grand: 300 of 5,600 settings)
-        pairs = pd.MultiIndex.from_arrays([t["dataset"].astype(str), t["setting"].astype(str)])
-        shown = t.loc[pairs.isin(list(paged)), needed]
-        by_setting = dict(list(shown.groupby(["dataset", "setting"], sort=False)))
-        for _, row in ranking.iterrows():
-            rows = by_setting.get((row["dataset"], row["setting"]))
-            if rows is None or (row["dataset"], row["setting"]) not in paged:
-                continue
-            path = folder / pages.setting_href(row["dataset"], row["setting"])
-            write_text(pages.setting_page(row, rows, fp6_pictures), path)
-    else:
-        write_text(pages.page("FP.6 camera", "<p>No camera setting ran.</p>", here="fp6.html"),
-                   folder / "fp6.html")  # fmt: skip
     if fp5_table is not None:
         write_text(pages.fp5_page(provenance, data, fp5_table, reference, fp5_pictures, figures),
                    folder / "fp5.html")  # fmt: skip
