@@ -8,11 +8,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ttc.evaluation.object_errors import judge_objects, track_bootstrap_ranks
+from ttc.evaluation.difficulty import RANKING_LEVELS
+from ttc.evaluation.object_errors import judge_objects, object_metrics, track_bootstrap_ranks
 from ttc.evaluation.object_levels import (
+    judged_in_level,
     level_agreement,
     level_counts,
     level_metrics,
+    level_pairs,
     level_rankings,
 )
 
@@ -108,3 +111,17 @@ def test_tau_between_recordings_per_level(tmp_path) -> None:
         {"easy": 1.0, "moderate": -1.0, "hard": 4 / 6, "all": 4 / 6}
     )
     assert "per difficulty level" in (tmp_path / "objects_recordings.md").read_text()
+
+
+@pytest.mark.parametrize("level", RANKING_LEVELS)
+def test_a_level_flagged_in_place_gives_the_tables_of_its_pairs(judged, level) -> None:
+    """The level's pairs flagged (no copy) give the metrics and ranking its pairs cut out
+    give, exactly; the flag holds only judged pairs of the level."""
+    flagged = judged_in_level(judged, level)
+    cut = level_pairs(judged, level)
+    assert len(flagged) == len(judged) and flagged["judged"].sum() == cut["judged"].sum()
+    assert flagged["judged"].sum() < judged["judged"].sum() or level in ("hard", "all")
+    pd.testing.assert_frame_equal(object_metrics(flagged, ["setting"]),
+                                  object_metrics(cut, ["setting"]), check_exact=True)  # fmt: skip
+    pd.testing.assert_frame_equal(track_bootstrap_ranks(flagged, n_boot=50),
+                                  track_bootstrap_ranks(cut, n_boot=50), check_exact=True)  # fmt: skip

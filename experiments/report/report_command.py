@@ -110,11 +110,11 @@ def build_report(
             return build_drives_report(data, ctx, out, pictures, log, html)
         reference = reference_for(data, ctx)
         lap("reference")
-        written = write_sweep_metrics(data, reference)
-        lap("metrics")
         has_rows = not data.frames.empty
         side = forked.start(lambda: _side_sections(data, reference, ctx, out, pictures),
                             "FP.5 and every object")  # fmt: skip
+        written = write_sweep_metrics(data, reference)
+        lap("metrics")
         reference_report.reference_report(data, reference, out)
         lap("reference report")
         fp6_tables = fp6.fp6_report(data, reference, ctx, out, pictures) if has_rows else None

@@ -26,9 +26,22 @@ def level_pairs(judged: pd.DataFrame, level: str) -> pd.DataFrame:
     return rows_where(judged, in_level(judged["difficulty"], level))
 
 
+def judged_in_level(judged: pd.DataFrame, level: str) -> pd.DataFrame:
+    """``judged`` (every pair, not copied) with its ``judged`` flag (N,) kept on the pairs
+    counted in ``level`` only: to a table that reads the judged pairs alone
+    (:func:`~ttc.evaluation.object_errors.object_metrics`,
+    :func:`~ttc.evaluation.object_errors.track_bootstrap_ranks`), the level's pairs in their
+    order, as :func:`level_pairs` gives them, without a copy of every column of them
+    (``grand`` 0–18: 170 MB a level)."""
+    flag = judged["judged"].to_numpy(dtype=bool) & in_level(judged["difficulty"], level)
+    return judged.assign(judged=flag)
+
+
 def _per_level(judged: pd.DataFrame, table) -> pd.DataFrame:
-    """``table(pairs)`` of every level's pairs, stacked with a leading ``difficulty`` column."""
-    parts = [table(level_pairs(judged, level)).assign(difficulty=level) for level in RANKING_LEVELS]
+    """``table(pairs)`` of every level's judged pairs (:func:`judged_in_level`), stacked with a
+    leading ``difficulty`` column."""
+    parts = [table(judged_in_level(judged, level)).assign(difficulty=level)
+             for level in RANKING_LEVELS]  # fmt: skip
     out = pd.concat(parts, ignore_index=True)
     return out[["difficulty", *[c for c in out.columns if c != "difficulty"]]]
 
