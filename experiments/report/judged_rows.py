@@ -17,6 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from experiments.configs.identity import with_neutral_axes
+from experiments.host.heap import release_freed_memory
 from experiments.store.schema import FRAME_COLUMNS
 from experiments.summary.recordings import run_ids_by_recording, setting_of
 from ttc import evaluation as ev
@@ -195,6 +196,7 @@ def as_frame(parts: list[pa.Table], with_nulls: AbstractSet[str]) -> pd.DataFram
     parts.clear()
     frame = table.to_pandas(self_destruct=True)
     del table
+    release_freed_memory()  # the table's pages back (grand 0-77: its load peaked 0.45 GB higher)
     for name in frame.columns:
         column = frame[name]
         if isinstance(column.dtype, pd.CategoricalDtype):
