@@ -19,6 +19,13 @@ def test_the_result_comes_back_and_the_parent_memory_is_read() -> None:
     assert pid != os.getpid() and total == 4_999_950_000
 
 
+def test_a_step_not_forked_runs_in_this_process_when_its_result_is_asked_for() -> None:
+    ran = []
+    step = forked.start(lambda: ran.append(os.getpid()) or len(ran), "inline", fork=False)
+    assert ran == []
+    assert step.result() == 1 and ran == [os.getpid()]
+
+
 def test_an_exception_is_raised_again_with_where_it_came_from() -> None:
     def broken() -> None:
         raise FileNotFoundError(2, "no such file", "/nowhere/objects.csv")

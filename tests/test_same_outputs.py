@@ -93,6 +93,10 @@ def both(tmp_path_factory) -> dict[str, dict]:
                                                "--cache-dir", str(base / "work" / "cache")],
          base / "work")  # fmt: skip
     out["kept"] = {"report": base / "kept"}
+    _run(code["after"], "experiments.report", [str(work), "--out", str(base / "one"),
+                                               "--cache-dir", str(base / "work" / "cache"),
+                                               "--one-process"], base / "work")  # fmt: skip
+    out["one_process"] = {"report": base / "one"}
     return out
 
 
@@ -154,10 +158,11 @@ def test_the_summary_is_the_same(both) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("after_name", ["after", "kept"])
+@pytest.mark.parametrize("after_name", ["after", "kept", "one_process"])
 def test_every_report_file_is_the_same(both, after_name) -> None:
     """Every file of today's report (``after``: its rows cut from the fragments; ``kept``: a
-    second report, from the cuts the first one kept) is the before code's."""
+    second report, from the cuts the first one kept; ``one_process``: a third, every section
+    in the report's own process) is the before code's."""
     before = _report_files(both["before"]["report"])
     after = _report_files(both[after_name]["report"])
     assert {"fp5_lidar.md", "fp6_ranking.csv", "fp7_fusion.csv", "objects.csv"} <= set(after)

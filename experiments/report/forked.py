@@ -5,8 +5,9 @@ The report's sections read the same loaded sweeps and write separate files; on t
 sweeps are loaded while the report's own process writes the reference, FP.5, FP.6 and FP.7
 sections. The forked process shares the loaded tables with the report's (copy-on-write
 pages: the memory of the process tree, its PSS, counts them once) and sends its step's result
-back pickled (a few small tables). Where ``fork`` is not available the step runs in the
-report's own process when its result is asked for: the same step, the same files.
+back pickled (a few small tables). Where ``fork`` is not available, or the report is asked to
+stay in one process (``--one-process``: its peak memory lower, its time longer), the step runs
+in the report's own process when its result is asked for: the same step, the same files.
 
 An exception of the step is raised again in the report's process (the same exception where
 it can be pickled); a forked process that dies without an answer (killed, out of memory) is
@@ -48,11 +49,11 @@ def _child(step: Callable[[], Any], send: Connection) -> None:
 class Forked(Generic[T]):
     """A step started in a forked process (:func:`start`); :meth:`result` waits for it."""
 
-    def __init__(self, step: Callable[[], T], name: str) -> None:
+    def __init__(self, step: Callable[[], T], name: str, fork: bool = True) -> None:
         self.name = name
         self._step: Callable[[], T] | None = None
         self._process = None
-        if "fork" not in mp.get_all_start_methods():
+        if not fork or "fork" not in mp.get_all_start_methods():
             self._step = step  # run by result(), in this process
             return
         context = mp.get_context("fork")
@@ -83,6 +84,7 @@ class Forked(Generic[T]):
         return answer[1]
 
 
-def start(step: Callable[[], T], name: str) -> Forked[T]:
-    """``step()`` started in a forked process (where the platform has ``fork``)."""
-    return Forked(step, name)
+def start(step: Callable[[], T], name: str, fork: bool = True) -> Forked[T]:
+    """``step()`` started in a forked process (where the platform has ``fork``; not with
+    ``fork`` false: then run by :meth:`Forked.result`, in this process)."""
+    return Forked(step, name, fork)
