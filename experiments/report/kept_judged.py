@@ -75,10 +75,8 @@ def cut_keys(
 
 
 def _counted_path(sweep_dir: Path, keys: list[str]) -> Path:
-    """The counts pickle of the kept files of ``keys`` (named as :func:`kept_tables.keep`
-    names them)."""
-    digest = hashlib.sha256("|".join(keys).encode()).hexdigest()[:32]
-    return Path(sweep_dir) / kt.CACHE_DIR / f"{COUNTED}-{digest}.pkl"
+    """The counts pickle of the kept files of ``keys``."""
+    return kt.kept_path(sweep_dir, COUNTED, keys, ".pkl")
 
 
 def _kept_counted(sweep_dir: Path, wanted: set[str]) -> dict[str, Counted]:

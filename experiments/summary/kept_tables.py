@@ -70,11 +70,18 @@ def read_kept(
     return table.filter(pc.is_in(table[FRAGMENT], pa.array(sorted(wanted), pa.string())))
 
 
+def kept_path(sweep_dir: Path, kind: str, keys: list[str], suffix: str = ".parquet") -> Path:
+    """The kept file of ``kind`` that holds the rows of ``keys``: named by their digest
+    (``<sweep>/.summary/<kind>-<digest><suffix>``)."""
+    digest = hashlib.sha256("|".join(keys).encode()).hexdigest()[:32]
+    return Path(sweep_dir) / CACHE_DIR / f"{kind}-{digest}{suffix}"
+
+
 def keep(sweep_dir: Path, kind: str, table: pa.Table, keys: list[str]) -> Path | None:
     """Write ``table`` (rows of ``keys``, :data:`FRAGMENT` column included) as one kept file
-    of ``kind``, named by its keys; its path, or None where the folder is read-only."""
-    digest = hashlib.sha256("|".join(keys).encode()).hexdigest()[:32]
-    path = Path(sweep_dir) / CACHE_DIR / f"{kind}-{digest}.parquet"
+    of ``kind``, named by its keys (:func:`kept_path`); its path, or None where the folder is
+    read-only."""
+    path = kept_path(sweep_dir, kind, keys)
     with contextlib.suppress(OSError):  # a read-only sweep folder: nothing kept
         write_parquet_atomic(table, path, {KEYS_META: json.dumps(keys).encode()})
         return path

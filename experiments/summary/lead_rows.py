@@ -125,7 +125,9 @@ def lead_table(rows: pa.Table) -> pa.Table:
 
 
 def fragment_key(frag: Fragment, key: str) -> str:
-    """The key the lead rows of ``frag`` are kept under (``key``: schema and code)."""
+    """The key a table derived from ``frag`` is kept under: of the fragment (SHA-256, name,
+    live runs) and ``key`` (what else it depends on: schema, code; the lead rows', or the
+    report's cuts', :mod:`experiments.report.kept_judged`)."""
     live = json.dumps(sorted(frag.n_rows))
     return hashlib.sha256(f"{frag.sha256}|{frag.path.name}|{live}|{key}".encode()).hexdigest()[:32]
 
