@@ -31,6 +31,7 @@ import pyarrow.compute as pc
 
 from experiments.host.heap import release_freed_memory
 from experiments.report import judged_rows as jr
+from experiments.store import schema as row_schema
 from experiments.store.dataset import Fragment, fragments, iter_tables
 from experiments.summary import kept_tables as kt
 from experiments.summary.kept_tables import FRAGMENT
@@ -54,9 +55,11 @@ Counted = tuple[ev.StageCounts, set[str]]
 
 
 def _code_key(schema: pa.Schema) -> str:
-    """Digest of the cutting code, the counting code, the library versions and ``schema``."""
-    return code_digest(("evaluation/stage_times.py", "evaluation/errors.py"),
-                       inspect.getsource(jr), str(schema), pd.__version__, pa.__version__)  # fmt: skip
+    """Digest of the cutting code and the columns it reads (the rows' schema, the axes, the
+    truth columns), the counting code, the library versions and ``schema``."""
+    files = ("evaluation/stage_times.py", "evaluation/errors.py", "settings.py", "io/frames.py")
+    return code_digest(files, inspect.getsource(jr), inspect.getsource(row_schema),
+                       str(schema), pd.__version__, pa.__version__)  # fmt: skip
 
 
 def cut_keys(
