@@ -16,6 +16,7 @@ import pyarrow.dataset as ds
 import pytest
 
 from experiments import store
+from experiments.store.dataset import iter_tables, unified_schema
 from tests.conftest import PROJECT_ROOT
 
 compact_module = importlib.import_module("experiments.store.compact")
@@ -257,8 +258,10 @@ def test_a_fragment_read_on_some_columns_keeps_live_rows_and_is_checked_whole(tm
     rows on those columns, as the whole rows give them; a byte changed anywhere in the file
     is named all the same."""
     synthetic_sweep(tmp_path)
-    tables, _ = store.scan_sweep(tmp_path, ["ttc_camera", "run_id", "no_such_column"])
-    got = pd.concat([t.to_pandas() for t in tables], ignore_index=True)
+    frags = store.fragments(tmp_path)
+    schema = unified_schema(frags)
+    got = pd.concat([t.to_pandas() for t in iter_tables(frags, schema, ["ttc_camera", "run_id"])],
+                    ignore_index=True)  # fmt: skip
     whole = store.load_sweep(tmp_path)[0][["ttc_camera", "run_id"]]
     assert list(got.columns) == ["ttc_camera", "run_id"] and len(got) == 12
     pd.testing.assert_frame_equal(
@@ -269,6 +272,6 @@ def test_a_fragment_read_on_some_columns_keeps_live_rows_and_is_checked_whole(tm
     data = bytearray(bad.read_bytes())
     data[len(data) // 2] ^= 0xFF
     bad.write_bytes(bytes(data))
-    tables, _ = store.scan_sweep(tmp_path, ["ttc_camera"])
+    tables = iter_tables(frags, schema, ["ttc_camera"])
     with pytest.raises(store.StoreError, match=f"{bad.name}: rows file corrupt"):
         list(tables)

@@ -132,14 +132,10 @@ def _in_order(tables: list[pa.Table], keys: list[str]) -> pa.Table:
 
 
 def _only(tables: list[pa.Table], keys: set[str]) -> list[pa.Table]:
-    """``tables`` cut to the rows of ``keys`` where they hold others."""
-    out = []
-    for table in tables:
-        held = set(pc.unique(table[FRAGMENT]).to_pylist())
-        if not held <= keys:
-            table = table.filter(pc.is_in(table[FRAGMENT], pa.array(sorted(keys), pa.string())))
-        out.append(table)
-    return out
+    """``tables`` cut to the rows of ``keys`` where they hold others (a key read from one
+    kind of kept file whose other kind could not be read)."""
+    held = [set(pc.unique(t[FRAGMENT]).to_pylist()) for t in tables]
+    return [t if h <= keys else kt.of_keys(t, keys) for t, h in zip(tables, held, strict=True)]
 
 
 def read_judged(

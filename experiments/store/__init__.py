@@ -54,7 +54,6 @@ from experiments.store.dataset import (
     row_count,
     rows_dataset,
     runs_table,
-    scan_sweep,
     sweep_records,
 )
 from experiments.store.files import (
@@ -84,7 +83,6 @@ ROWS_GLOB = f"{RUNS_DIR}/*.parquet"
 RECORDS_GLOB = f"{RUNS_DIR}/*.json"
 
 __all__ = [
-    "scan_sweep",
     "sweep_records",
     "UNREAD_RECORD_FIELDS",
     "RUNS_DIR",

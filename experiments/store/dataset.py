@@ -258,25 +258,6 @@ def sweep_records(sweep_dir: Path) -> list[dict[str, Any]]:
     return list_records(sweep_dir)
 
 
-def scan_sweep(
-    sweep_dir: Path, columns: list[str] | None = None, exclude: tuple[str, ...] = ()
-) -> tuple[Iterator[pa.Table], pd.DataFrame]:
-    """(each live fragment's checked rows as an Arrow table of the sweep's unified schema,
-    one at a time, in :func:`load_sweep`'s order; every run record, the fields ``exclude``
-    left out): :func:`load_sweep` in memory bounded by a fragment, for a reader that keeps
-    only part of each (``columns``: only these, those the sweep has). A fragment that a
-    compaction removes while it is read raises :class:`StoreError` naming it (open the
-    sweep again)."""
-    records = sweep_records(sweep_dir)
-    frags = fragments(sweep_dir, records)
-    schema = unified_schema(frags)
-    if schema is None:
-        return iter(()), runs_table(records, exclude)
-    present = None if columns is None else [c for c in columns if c in schema.names]
-    tables = iter_tables(frags, schema, present)
-    return tables, runs_table(records, exclude)
-
-
 def load_sweep(
     sweep_dir: Path, columns: list[str] | None = None
 ) -> tuple[pd.DataFrame, pd.DataFrame]:

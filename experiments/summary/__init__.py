@@ -16,6 +16,6 @@ and a sweep's end through :mod:`experiments.sweep.callbacks`). What it keeps, an
 Deleting ``.summary/`` is always safe. The report (:mod:`experiments.report`) reads the same
 tables and keeps its own cut of each fragment's rows there, named the same way (kinds
 ``judged`` and ``boxes``, ``counted-<digest>.pkl`` beside them:
-:mod:`experiments.report.kept_judged`); the sweep (:mod:`experiments.sweep`) calls the summary when it ends. Imports
-:mod:`experiments.store` and the layers below it only.
+:mod:`experiments.report.kept_judged`); the sweep (:mod:`experiments.sweep`) calls the
+summary when it ends. Imports :mod:`experiments.store` and the layers below it only.
 """

@@ -65,9 +65,13 @@ def read_kept(
         return None
     if FRAGMENT not in table.column_names:
         return None
-    if whole:
-        return table
-    return table.filter(pc.is_in(table[FRAGMENT], pa.array(sorted(wanted), pa.string())))
+    return table if whole else of_keys(table, wanted)
+
+
+def of_keys(table: pa.Table, keys: set[str]) -> pa.Table:
+    """The rows of ``table`` whose :data:`FRAGMENT` key is in ``keys`` (a copy of every
+    column: take the columns wanted first)."""
+    return table.filter(pc.is_in(table[FRAGMENT], pa.array(sorted(keys), pa.string())))
 
 
 def kept_path(sweep_dir: Path, kind: str, keys: list[str], suffix: str = ".parquet") -> Path:

@@ -195,7 +195,7 @@ class LeadRows:
                 continue
             part = fresh if columns is None else fresh.select([*columns, FRAGMENT])
             if wanted != held:
-                part = part.filter(pc.is_in(part[FRAGMENT], pa.array(sorted(wanted), pa.string())))
+                part = kt.of_keys(part, wanted)
             tables.append(part)
             found |= wanted
         kept, got = kt.kept_rows(self._files, [k for k in keys if k not in found], columns)
